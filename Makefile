@@ -1,0 +1,27 @@
+# The two commands of the README: `make run` (the main job) and `make test`. Both create and
+# use the virtual environment .venv/ and are safe to re-run.
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed
+# Tests and CI read the standard datasets from ../shared/datasets unless POPBENCH_DATA is set.
+export POPBENCH_DATA ?= $(abspath ../shared/datasets)
+
+.PHONY: install run test lint bench
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --upgrade pip
+	$(VENV)/bin/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+run: $(STAMP)
+	$(VENV)/bin/popbench run table1
+
+test: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/python -m pytest -q
+
+bench: $(STAMP)
+	$(VENV)/bin/python benchmarks/run_all.py

@@ -1,0 +1,152 @@
+"""The PGO objective and its companions, vectorised over edges.
+
+* ``F`` (paper eq. 1 with ``w_R² = κ``, ``w_T² = τ``)::
+
+      F(x) = Σ_e κ_e · wrap(θ_q − θ_p − θ̃)² + τ_e · ‖R(θ_p)ᵀ(t_q − t_p) − t̃‖²
+
+* ``F_chordal`` (SE-Sync convention, no ½)::
+
+      F_chordal(x) = Σ_e κ_e ‖R_q − R_p R̃‖²_F + τ_e ‖t_q − t_p − R_p t̃‖²
+                   = Σ_e 4 κ_e (1 − cos r_θ) + τ_e ‖r_t‖²
+
+* ``chi2``: g2o's EDGE_SE2 error ``e = t2v(z̃⁻¹ ∘ x_p⁻¹ ∘ x_q) = [R(θ̃)ᵀ r_t, r_θ]``, summed as
+  ``Σ eᵀ Λ e`` (no ½; GTSAM's ``graph.error`` is ½ of the Logmap version of this).
+
+with ``κ = Λ_θθ`` and ``τ = 2 / tr(Λ_tt⁻¹)`` (SE-Sync / DPGO / MM-PGO weights).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from popbench import se2
+from popbench.graph import PoseGraph
+
+# J = R(π/2); dR(θ)/dθ = R(θ) J.
+_J = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def weights(information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-edge rotation and translation weights ``(κ, τ)``, each ``(M,)``.
+
+    ``κ = Λ_θθ``; ``τ = 2 / tr(Λ_tt⁻¹)`` with ``Λ_tt`` the 2×2 translation block.
+    """
+    kappa = information[:, 2, 2]
+    a, b, d = information[:, 0, 0], information[:, 0, 1], information[:, 1, 1]
+    tau = 2.0 * (a * d - b * b) / (a + d)  # 2 / tr(Λ_tt⁻¹) for a 2×2 block
+    return kappa, tau
+
+
+def residuals(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
+    """Unweighted residuals ``[r_t, r_θ]``, ``(M, 3)``: ``r_t = R_pᵀ(t_q − t_p) − t̃`` [m],
+    ``r_θ = wrap(θ_q − θ_p − θ̃)`` [rad] (paper eq. 1)."""
+    poses = graph.poses if poses is None else poses
+    relative = se2.between(poses[graph.tails], poses[graph.heads])
+    r_t = relative[:, :2] - graph.measurements[:, :2]
+    r_theta = se2.wrap(relative[:, 2] - graph.measurements[:, 2])
+    return np.column_stack([r_t, r_theta])
+
+
+def g2o_errors(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
+    """g2o EDGE_SE2 errors ``t2v(z̃⁻¹ x_p⁻¹ x_q) = [R(θ̃)ᵀ r_t, r_θ]``, ``(M, 3)``."""
+    r = residuals(graph, poses)
+    return np.column_stack([se2.unrotate(graph.measurements[:, 2], r[:, :2]), r[:, 2]])
+
+
+def logmap_errors(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
+    """GTSAM ``BetweenFactor<Pose2>`` errors ``Logmap(z̃⁻¹ x_p⁻¹ x_q)``, ``(M, 3)``."""
+    poses = graph.poses if poses is None else poses
+    relative = se2.between(poses[graph.tails], poses[graph.heads])
+    return se2.log(se2.between(graph.measurements, relative))
+
+
+def quadratic_form(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
+    """Per-edge ``eᵀ Λ e``, ``(M,)``."""
+    return np.einsum("mi,mij,mj->m", errors, information, errors)
+
+
+def objective(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
+    """``F`` (paper eq. 1, κ/τ weights)."""
+    r = residuals(graph, poses)
+    kappa, tau = weights(graph.information)
+    return float(np.sum(kappa * r[:, 2] ** 2 + tau * np.sum(r[:, :2] ** 2, axis=1)))
+
+
+def chordal_objective(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
+    """``F_chordal`` (SE-Sync convention): ``Σ 4κ(1 − cos r_θ) + τ‖r_t‖²``."""
+    r = residuals(graph, poses)
+    kappa, tau = weights(graph.information)
+    return float(np.sum(4.0 * kappa * (1.0 - np.cos(r[:, 2])) + tau * np.sum(r[:, :2] ** 2, 1)))
+
+
+def chi2(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
+    """g2o χ² ``Σ eᵀΛe`` with the EDGE_SE2 error (no ½)."""
+    return float(np.sum(quadratic_form(g2o_errors(graph, poses), graph.information)))
+
+
+class Costs(NamedTuple):
+    """The three reported costs of one estimate."""
+
+    F: float
+    F_chordal: float
+    chi2: float
+
+
+def evaluate(graph: PoseGraph, poses: np.ndarray | None = None) -> Costs:
+    """``(F, F_chordal, chi2)`` of ``poses`` (default: the graph's own estimate)."""
+    return Costs(objective(graph, poses), chordal_objective(graph, poses), chi2(graph, poses))
+
+
+class Linearisation(NamedTuple):
+    """Whitened residuals and their Jacobians: ``F = Σ_e ‖e_e‖²``.
+
+    ``errors``: ``(M, 3)`` = ``[√τ r_t, √κ r_θ]``; ``jac_tail``/``jac_head``: ``(M, 3, 3)``
+    derivatives of ``errors`` with respect to ``(t_p, θ_p)`` and ``(t_q, θ_q)``.
+    """
+
+    errors: np.ndarray
+    jac_tail: np.ndarray
+    jac_head: np.ndarray
+
+
+def linearise(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisation:
+    """Whitened residuals of eq. 1 and their analytic Jacobians (additive pose increments).
+
+    ``∂r_t/∂t_p = −R_pᵀ``, ``∂r_t/∂θ_p = −J R_pᵀ (t_q − t_p)``, ``∂r_t/∂t_q = R_pᵀ``,
+    ``∂r_θ/∂θ_p = −1``, ``∂r_θ/∂θ_q = 1``, with ``J = R(π/2)``.
+    """
+    poses = graph.poses if poses is None else poses
+    r = residuals(graph, poses)
+    kappa, tau = weights(graph.information)
+    sqrt_tau, sqrt_kappa = np.sqrt(tau), np.sqrt(kappa)
+    theta_p = poses[graph.tails, 2]
+    rot_t = np.swapaxes(se2.rotation(theta_p), -1, -2)  # R_pᵀ, (M, 2, 2)
+    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
+    d_theta_p = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
+
+    m = graph.num_edges
+    jac_tail = np.zeros((m, 3, 3))
+    jac_head = np.zeros((m, 3, 3))
+    jac_tail[:, :2, :2] = -sqrt_tau[:, None, None] * rot_t
+    jac_tail[:, :2, 2] = sqrt_tau[:, None] * d_theta_p
+    jac_tail[:, 2, 2] = -sqrt_kappa
+    jac_head[:, :2, :2] = sqrt_tau[:, None, None] * rot_t
+    jac_head[:, 2, 2] = sqrt_kappa
+    errors = np.column_stack([sqrt_tau[:, None] * r[:, :2], sqrt_kappa * r[:, 2]])
+    return Linearisation(errors, jac_tail, jac_head)
+
+
+def gradient(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
+    """``∇F`` with respect to the poses, ``(N, 3)`` (``2 Jᵀ e``, scattered to vertices)."""
+    lin = linearise(graph, poses)
+    g_tail = 2.0 * np.einsum("mij,mi->mj", lin.jac_tail, lin.errors)
+    g_head = 2.0 * np.einsum("mij,mi->mj", lin.jac_head, lin.errors)
+    n = graph.num_poses
+    return np.column_stack(
+        [
+            np.bincount(graph.tails, g_tail[:, k], n) + np.bincount(graph.heads, g_head[:, k], n)
+            for k in range(3)
+        ]
+    )

@@ -1,0 +1,1 @@
+"""Centralised solvers shared by every method: chordal initialisation and LM."""

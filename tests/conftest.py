@@ -1,0 +1,30 @@
+"""Shared fixtures: real datasets come through the registry (POPBENCH_DATA in tests and CI)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from popbench import se2
+from popbench.graph import make_graph
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)
+
+
+@pytest.fixture
+def small_graph(rng: np.random.Generator):
+    """A 30-pose noisy loop with a few loop closures and anisotropic information."""
+    n = 30
+    angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    truth = np.column_stack([5 * np.cos(angles), 5 * np.sin(angles), se2.wrap(angles + np.pi / 2)])
+    tails = np.concatenate([np.arange(n - 1), [0, 5, 20]])
+    heads = np.concatenate([np.arange(1, n), [n - 1, 15, 9]])
+    z = se2.between(truth[tails], truth[heads]) + rng.normal(0, 0.05, (tails.size, 3))
+    info = np.tile(
+        np.array([[40.0, 5.0, 1.0], [5.0, 20.0, 2.0], [1.0, 2.0, 90.0]]), (tails.size, 1, 1)
+    )
+    graph = make_graph(np.zeros((n, 3)), tails, heads, z, info, ground_truth=truth, name="loop30")
+    return graph.replace(poses=graph.odometry_initial())
