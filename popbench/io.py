@@ -13,6 +13,7 @@ composition of their edges (:func:`popbench.graph.odometry_composition`).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from popbench.errors import DataFormatError
 from popbench.graph import PoseGraph, make_graph, odometry_composition
 
 _FORMATS = {
-    # tag: (vertex tag, edge tag, information index order into the upper triangle)
+    # format: (vertex tag, edge tag)
     "g2o": ("VERTEX_SE2", "EDGE_SE2"),
     "toro": ("VERTEX2", "EDGE2"),
 }
@@ -35,7 +36,7 @@ def detect_format(path: Path) -> str:
     """``"toro"`` for ``.graph`` files or files whose first tag is VERTEX2/EDGE2, else ``"g2o"``."""
     if path.suffix == ".graph":
         return "toro"
-    with path.open() as handle:
+    with path.open(encoding="utf-8", errors="replace") as handle:
         for line in handle:
             tag = line.split(maxsplit=1)[0] if line.strip() else ""
             if tag in ("VERTEX2", "EDGE2"):
@@ -63,67 +64,114 @@ def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: 
     return values
 
 
-def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
-    """Read a g2o or TORO file (format from the suffix or the first tag).
+class _Lines(NamedTuple):
+    """The parsed VERTEX and EDGE lines of one file, with their line numbers."""
 
-    Raises:
-        DataFormatError: a malformed line (``file:line: reason``), an unknown tag, no edges,
-            non-contiguous vertex ids or an information matrix that is not positive definite.
-    """
-    path = Path(path)
-    fmt = detect_format(path)
+    vertices: np.ndarray  # (V, 4) id, x, y, θ
+    vertex_lines: np.ndarray  # (V,) 1-based line numbers
+    edges: np.ndarray  # (E, 11) i, j, dx, dy, dθ, six information numbers
+    edge_lines: np.ndarray  # (E,)
+
+
+def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
     vertex_tag, edge_tag = _FORMATS[fmt]
     vertices: list[list[float]] = []
     vertex_lines: list[int] = []
     edges: list[list[float]] = []
     edge_lines: list[int] = []
-    with path.open() as handle:
-        for lineno, line in enumerate(handle, start=1):
-            tokens = line.split()
-            if not tokens or tokens[0].startswith("#"):
-                continue
-            tag = tokens[0]
-            if tag == vertex_tag:
-                vertices.append(_parse_numbers(path, lineno, tokens, 5, tag))
-                vertex_lines.append(lineno)
-            elif tag == edge_tag:
-                edges.append(_parse_numbers(path, lineno, tokens, 12, tag))
-                edge_lines.append(lineno)
-            elif tag not in _IGNORED_TAGS:
-                raise DataFormatError(
-                    path, lineno, f"unknown tag {tag!r} (expected {vertex_tag} or {edge_tag})"
-                )
-    if not edges:
-        raise DataFormatError(path, 0, f"no {edge_tag} lines: not a {fmt} pose graph")
-    edge_array = np.asarray(edges)
-    tails = edge_array[:, 0].astype(np.int64)
-    heads = edge_array[:, 1].astype(np.int64)
-    measurements = edge_array[:, 2:5].copy()
+    lineno = 0
+    try:
+        with path.open(encoding="utf-8") as handle:
+            for lineno, line in enumerate(handle, start=1):  # noqa: B007 - used after the loop
+                tokens = line.split()
+                if not tokens or tokens[0].startswith("#"):
+                    continue
+                tag = tokens[0]
+                if tag == vertex_tag:
+                    vertices.append(_parse_numbers(path, lineno, tokens, 5, tag))
+                    vertex_lines.append(lineno)
+                elif tag == edge_tag:
+                    if parse_edges:
+                        edges.append(_parse_numbers(path, lineno, tokens, 12, tag))
+                    edge_lines.append(lineno)
+                elif tag not in _IGNORED_TAGS:
+                    raise DataFormatError(
+                        path, lineno, f"unknown tag {tag!r} (expected {vertex_tag} or {edge_tag})"
+                    )
+    except UnicodeDecodeError:
+        raise DataFormatError(path, lineno + 1, "not a text file") from None
+    return _Lines(
+        np.asarray(vertices, dtype=np.float64).reshape(-1, 4),
+        np.asarray(vertex_lines, dtype=np.int64),
+        np.asarray(edges, dtype=np.float64).reshape(-1, 11),
+        np.asarray(edge_lines, dtype=np.int64),
+    )
+
+
+def _vertex_poses(path: Path, lines: _Lines, num_poses: int) -> np.ndarray:
+    """``(num_poses, 3)`` poses from VERTEX lines whose ids must be exactly 0 … num_poses − 1."""
+    ids = lines.vertices[:, 0].astype(np.int64)
+    order = np.argsort(ids, kind="stable")
+    repeated = np.flatnonzero(np.diff(ids[order]) == 0)
+    if repeated.size:
+        k = order[repeated[0] + 1]
+        raise DataFormatError(path, int(lines.vertex_lines[k]), f"vertex id {ids[k]} repeated")
+    missing = np.setdiff1d(np.arange(num_poses), ids)
+    if missing.size:
+        raise DataFormatError(
+            path,
+            int(lines.vertex_lines[-1]) if lines.vertex_lines.size else 0,
+            f"vertex ids must be contiguous from 0: no VERTEX line for id {int(missing[0])} "
+            f"({missing.size} of {num_poses} missing)",
+        )
+    poses = np.zeros((num_poses, 3))
+    poses[ids] = lines.vertices[:, 1:4]
+    poses[:, 2] = se2.wrap(poses[:, 2])
+    return poses
+
+
+def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
+    """Read a g2o or TORO file (format from the suffix or the first tag).
+
+    Raises:
+        FileNotFoundError: no such file.
+        DataFormatError: a malformed line (``file:line: reason``), an unknown tag, no edges,
+            non-contiguous vertex ids or an information matrix that is not positive definite.
+    """
+    path = Path(path)
+    fmt = detect_format(path)
+    lines = _scan(path, fmt)
+    if not lines.edges.size:
+        raise DataFormatError(path, 0, f"no {_FORMATS[fmt][1]} lines: not a {fmt} pose graph")
+    tails = lines.edges[:, 0].astype(np.int64)
+    heads = lines.edges[:, 1].astype(np.int64)
+    measurements = lines.edges[:, 2:5].copy()
     measurements[:, 2] = se2.wrap(measurements[:, 2])
-    information = _information(edge_array[:, 5:], fmt, measurements[:, 2])
-    _check_information(path, information, edge_lines)
+    information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
+    _check_information(path, information, lines.edge_lines)
 
     num_poses = int(max(tails.max(), heads.max())) + 1
-    if vertices:
-        vertex_array = np.asarray(vertices)
-        ids = vertex_array[:, 0].astype(np.int64)
-        num_poses = max(num_poses, int(ids.max()) + 1)
-        if np.unique(ids).size != ids.size or ids.size != num_poses:
-            missing = np.setdiff1d(np.arange(num_poses), ids)
-            where = vertex_lines[-1] if missing.size == 0 else 0
-            raise DataFormatError(
-                path,
-                where,
-                f"vertex ids must be unique and contiguous from 0; "
-                f"{ids.size} vertex lines for {num_poses} ids"
-                + (f", missing id {int(missing[0])}" if missing.size else ""),
-            )
-        poses = np.zeros((num_poses, 3))
-        poses[ids] = vertex_array[:, 1:4]
-        poses[:, 2] = se2.wrap(poses[:, 2])
+    if lines.vertices.size:
+        num_poses = max(num_poses, int(lines.vertices[:, 0].max()) + 1)
+        poses = _vertex_poses(path, lines, num_poses)
     else:
         poses = odometry_composition(num_poses, tails, heads, measurements)
     return make_graph(poses, tails, heads, measurements, information, name=name or path.stem)
+
+
+def read_vertices(path: str | Path) -> np.ndarray:
+    """Only the VERTEX lines of a g2o/TORO file as ``(N, 3)`` poses (e.g. a ground-truth file);
+    edge lines are skipped unparsed.
+
+    Raises:
+        DataFormatError: no VERTEX lines, a malformed one, or ids not contiguous from 0.
+    """
+    path = Path(path)
+    fmt = detect_format(path)
+    lines = _scan(path, fmt, parse_edges=False)
+    if not lines.vertices.size:
+        raise DataFormatError(path, 0, f"no {_FORMATS[fmt][0]} lines")
+    return _vertex_poses(path, lines, int(lines.vertices[:, 0].max()) + 1)
 
 
 def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:
@@ -140,7 +188,7 @@ def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:
     return information
 
 
-def _check_information(path: Path, information: np.ndarray, lines: list[int]) -> None:
+def _check_information(path: Path, information: np.ndarray, lines: np.ndarray) -> None:
     eigenvalues = np.linalg.eigvalsh(information)
     bad = np.flatnonzero(eigenvalues[:, 0] <= 0.0)
     if bad.size:
