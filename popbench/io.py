@@ -46,6 +46,12 @@ def detect_format(path: Path) -> str:
     return "g2o"
 
 
+def _wrap_out_of_range(theta: np.ndarray) -> np.ndarray:
+    """Angles [rad] wrapped to ``[-π, π)``, leaving those already in range bit-exact
+    (``se2.wrap`` moves in-range angles by an ulp, which would break exact round trips)."""
+    return np.where((theta >= -np.pi) & (theta < np.pi), theta, se2.wrap(theta))
+
+
 def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: str) -> list[float]:
     if len(tokens) != count:
         raise DataFormatError(
@@ -126,7 +132,7 @@ def _vertex_poses(path: Path, lines: _Lines, num_poses: int) -> np.ndarray:
         )
     poses = np.zeros((num_poses, 3))
     poses[ids] = lines.vertices[:, 1:4]
-    poses[:, 2] = se2.wrap(poses[:, 2])
+    poses[:, 2] = _wrap_out_of_range(poses[:, 2])
     return poses
 
 
@@ -146,7 +152,7 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     tails = lines.edges[:, 0].astype(np.int64)
     heads = lines.edges[:, 1].astype(np.int64)
     measurements = lines.edges[:, 2:5].copy()
-    measurements[:, 2] = se2.wrap(measurements[:, 2])
+    measurements[:, 2] = _wrap_out_of_range(measurements[:, 2])
     information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
     _check_information(path, information, lines.edge_lines)
 

@@ -28,3 +28,15 @@ def small_graph(rng: np.random.Generator):
     )
     graph = make_graph(np.zeros((n, 3)), tails, heads, z, info, ground_truth=truth, name="loop30")
     return graph.replace(poses=graph.odometry_initial())
+
+
+def require_dataset(name: str):
+    """The registered dataset ``name`` as a PoseGraph (from POPBENCH_DATA, the cache or a
+    download), or ``pytest.skip`` when it is nowhere on disk and cannot be downloaded. A checksum
+    mismatch or a malformed file still fails the test."""
+    from popbench import datasets
+
+    try:
+        return datasets.load(name)
+    except datasets.DatasetUnavailableError as error:
+        pytest.skip(f"dataset {name} unavailable: {error}")
