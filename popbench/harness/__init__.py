@@ -1,0 +1,1 @@
+"""The experiment harness: table cells, their cache, reports and figures."""

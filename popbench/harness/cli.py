@@ -1,0 +1,205 @@
+"""``popbench run ...`` and ``popbench plot ...``: the harness commands.
+
+Lists are comma-separated (``--datasets intel,mit --robots 3,7``). Finished cells are cached
+under ``OUT/cells``: re-running a command recomputes nothing that finished, so an interrupted
+run resumes where it stopped (delete the folder to start afresh).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from popbench.errors import ValueRangeError
+
+run_app = typer.Typer(
+    help="Run the paper's experiments; write CSV, markdown, LaTeX and figures.",
+    no_args_is_help=True,
+)
+plot_app = typer.Typer(help="Plot trajectories and learning curves.", no_args_is_help=True)
+
+
+def _names(text: str, allowed: tuple[str, ...] | None, what: str) -> tuple[str, ...]:
+    items = tuple(item.strip() for item in text.split(",") if item.strip())
+    if not items:
+        raise ValueRangeError(what, text, "a comma-separated, non-empty list")
+    if allowed is not None:
+        for item in items:
+            if item not in allowed:
+                raise ValueRangeError(what, item, " | ".join(allowed))
+    return items
+
+
+def _integers(text: str, what: str, low: int = 1) -> tuple[int, ...]:
+    try:
+        values = tuple(int(item) for item in _names(text, None, what))
+    except ValueError:
+        raise ValueRangeError(what, text, "comma-separated integers") from None
+    for value in values:
+        if value < low:
+            raise ValueRangeError(what, value, f"integers ≥ {low}")
+    return values
+
+
+def _rates(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(item) for item in _names(text, None, "rate"))
+    except ValueError:
+        raise ValueRangeError("rate", text, "comma-separated fractions in [0, 1]") from None
+    for value in values:
+        if not 0.0 <= value <= 1.0:
+            raise ValueRangeError("rate", value, "fractions in [0, 1] (0.1 = 10 %)")
+    return values
+
+
+def _init(value: str) -> str:
+    from popbench.harness.problems import INITS
+
+    if value not in INITS:
+        raise ValueRangeError("--init", value, " | ".join(INITS))
+    return value
+
+
+def _methods(text: str) -> tuple[str, ...]:
+    from popbench.methods import METHODS
+
+    return _names(text, tuple(METHODS), "method")
+
+
+@run_app.command("table1")
+def table1_command(
+    datasets: str = typer.Option(
+        None, help="Datasets (registered names or .g2o paths), default: the paper's eight."
+    ),
+    robots: str = typer.Option("3,7,35", help="Team sizes."),
+    methods: str = typer.Option("cc-pgo,ml-pgo,mm-pgo,prop-v1,prop-v2", help="Methods."),
+    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
+    init: str = typer.Option(
+        "odometry", help="Initial estimate for every method: odometry | chordal."
+    ),
+    partition: str = typer.Option("metis", help="metis | contiguous."),
+    out: Path = typer.Option(Path("results/table1"), help="Output folder."),
+    quick: bool = typer.Option(
+        False,
+        "--quick",
+        help="A small subset (mit, n = 3, 100 iterations) that finishes in about a minute.",
+    ),
+) -> None:
+    """The paper's Table I: datasets × robots × methods, with F* and the gap F/F* − 1.
+
+    Writes OUT/table1.csv (one row per cell), table1.md, table1.tex (ours beside the paper's
+    numbers) and table1.png/.pdf.
+    """
+    from popbench.harness.table1 import DATASETS, Table1Config, run_table1
+
+    options = {
+        "methods": _methods(methods),
+        "seeds": _integers(seeds, "seed", 0),
+        "init": _init(init),
+        "partition": _names(partition, ("metis", "contiguous"), "partition")[0],
+        "out": out,
+    }
+    if quick:
+        if datasets:
+            options["datasets"] = _names(datasets, None, "dataset")
+        config = Table1Config.quick(**options)
+    else:
+        config = Table1Config(
+            datasets=_names(datasets, None, "dataset") if datasets else DATASETS,
+            robots=_integers(robots, "robots"),
+            iterations=iterations,
+            **options,
+        )
+    frame = run_table1(config)
+    typer.echo(
+        f"{len(frame)} cells -> {config.out}/table1.csv, table1.md, table1.tex, "
+        "table1.png, table1.pdf"
+    )
+
+
+@run_app.command("outliers")
+def outliers_command(
+    rate: str = typer.Option("0.1", help="Outlier rates (fractions), e.g. 0.025,0.05,0.1."),
+    datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
+    methods: str = typer.Option("prop-v1,mm-pgo", help="Methods (need an inlier mask)."),
+    robots: int = typer.Option(7, min=1, help="Team size."),
+    seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
+    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    kernel: str = typer.Option("gm", help="mm-pgo robust kernel: huber | gm | welsch."),
+    init: str = typer.Option("odometry", help="odometry | chordal (from the corrupted data)."),
+    out: Path = typer.Option(Path("results/outliers"), help="Output folder."),
+) -> None:
+    """The paper's Table II: F, outlier precision and recall with corrupted loop closures."""
+    from popbench.harness.outliers import OutliersConfig, run_outliers
+
+    config = OutliersConfig(
+        datasets=_names(datasets, None, "dataset"),
+        rates=_rates(rate),
+        methods=_methods(methods),
+        robots=robots,
+        seeds=_integers(seeds, "seed", 0),
+        iterations=iterations,
+        init=_init(init),
+        kernel=_names(kernel, ("huber", "gm", "welsch"), "kernel")[0],
+        out=out,
+    )
+    frame = run_outliers(config)
+    typer.echo(f"{len(frame)} cells -> {config.out}/outliers.csv, outliers.md, outliers.tex")
+
+
+@run_app.command("scalability")
+def scalability_command(
+    dataset: str = typer.Option("m3500", help="Dataset."),
+    robots: str = typer.Option("1,2,3,5,7,10,14,20,28,35,50,70", help="Team sizes."),
+    methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods."),
+    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    init: str = typer.Option("odometry", help="odometry | chordal."),
+    out: Path = typer.Option(Path("results/scalability"), help="Output folder."),
+) -> None:
+    """The paper's Fig. 5: F and time against team size, actors replicated."""
+    from popbench.harness.scalability import ScalabilityConfig, run_scalability
+
+    config = ScalabilityConfig(
+        dataset=dataset,
+        robots=_integers(robots, "robots"),
+        methods=_methods(methods),
+        iterations=iterations,
+        init=_init(init),
+        out=out,
+    )
+    frame = run_scalability(config)
+    typer.echo(f"{len(frame)} cells -> {config.out}/scalability.csv, scalability.png/.pdf")
+
+
+@plot_app.command("trajectories")
+def trajectories_command(
+    dataset: str = typer.Argument(..., help="Dataset name or .g2o path."),
+    robots: int = typer.Option(7, min=1, help="Team size."),
+    methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods to plot."),
+    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    init: str = typer.Option("odometry", help="odometry | chordal."),
+    out: Path = typer.Option(None, help="Output stem (default results/figures/DATASET)."),
+) -> None:
+    """The paper's Fig. 4: initial and optimised estimates, one colour per robot."""
+    from popbench.harness.figures import plot_trajectories
+
+    stem = out or Path("results/figures") / f"trajectories_{Path(dataset).stem}"
+    paths = plot_trajectories(dataset, robots, _methods(methods), stem, iterations, _init(init))
+    typer.echo(" ".join(str(p) for p in paths))
+
+
+@plot_app.command("curves")
+def curves_command(
+    csv: list[Path] = typer.Argument(..., help="Training CSV files (popbench train writes them)."),
+    out: Path = typer.Option(Path("results/figures/learning_curves"), help="Output stem."),
+) -> None:
+    """Learning curves from training CSVs, one line per file."""
+    from popbench.harness.figures import plot_learning_curves
+
+    for path in csv:
+        if not path.exists():
+            raise ValueRangeError("CSV file", str(path), "an existing file")
+    paths = plot_learning_curves(csv, out)
+    typer.echo(" ".join(str(p) for p in paths))

@@ -1,0 +1,82 @@
+"""Trajectory plots (the paper's Fig. 4) and learning curves from training CSVs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from popbench.harness import problems
+from popbench.methods import Budget, get_method
+
+
+def _pyplot():  # noqa: ANN202 - matplotlib.pyplot, imported lazily (slow import)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_trajectories(
+    dataset: str,
+    robots: int,
+    methods: tuple[str, ...],
+    out: Path,
+    iterations: int = 1000,
+    init: str = "odometry",
+) -> list[Path]:
+    """One panel per estimate (initial, then each method), one colour per robot; PNG + PDF."""
+    plt = _pyplot()
+    problem = problems.distributed_problem(dataset, robots, init)
+    estimates = [(f"initial ({init})", problem.graph.poses)]
+    for method in methods:
+        result = get_method(method)(problem, Budget(iterations=iterations), init="problem")
+        estimates.append((f"{method}: F = {result.F:.4g}", result.poses))
+    fig, axes = plt.subplots(1, len(estimates), figsize=(4 * len(estimates), 4), squeeze=False)
+    colours = plt.get_cmap("tab10" if robots <= 10 else "turbo")(
+        np.linspace(0, 1, robots) if robots > 10 else np.arange(robots)
+    )
+    for ax, (title, poses) in zip(axes[0], estimates, strict=True):
+        for robot in range(robots):
+            owned = problem.owned(robot)
+            ax.plot(poses[owned, 0], poses[owned, 1], ".", markersize=1.5, color=colours[robot])
+        ax.set_title(title, fontsize="small")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(f"{dataset}, n = {robots}")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    paths = [out.with_suffix(".png"), out.with_suffix(".pdf")]
+    for path in paths:
+        fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return paths
+
+
+def plot_learning_curves(csv_paths: list[Path], out: Path, x: str = "frames") -> list[Path]:
+    """Every numeric column of the training CSVs against ``x``, one panel per column, one line
+    per file; PNG + PDF."""
+    plt = _pyplot()
+    frames = {path.stem: pd.read_csv(path) for path in csv_paths}
+    columns = sorted(
+        {c for f in frames.values() for c in f.select_dtypes("number").columns if c != x}
+    )
+    fig, axes = plt.subplots(1, len(columns), figsize=(4 * len(columns), 3.4), squeeze=False)
+    for ax, column in zip(axes[0], columns, strict=True):
+        for label, frame in frames.items():
+            if column in frame and x in frame:
+                ax.plot(frame[x], frame[column], label=label)
+        ax.set_xlabel(x)
+        ax.set_title(column, fontsize="small")
+    axes[0, 0].legend(fontsize="small")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    paths = [out.with_suffix(".png"), out.with_suffix(".pdf")]
+    for path in paths:
+        fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return paths

@@ -1,0 +1,98 @@
+"""The paper's Fig. 5: F and time against the team size n with replicated actors.
+
+The paper does not name its dataset; ours defaults to m3500 (3500 poses: 50 per robot at
+n = 70). Cells are Table I cells (same problem construction, same measurements).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pandas as pd
+
+from popbench.harness import table1
+from popbench.harness.cache import CellCache
+from popbench.harness.manifest import write_manifest
+from popbench.harness.runner import Spec, run_cells
+
+ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
+METHODS = ("mm-pgo", "prop-v1", "prop-v2")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScalabilityConfig:
+    """What ``popbench run scalability`` computes."""
+
+    dataset: str = "m3500"
+    robots: tuple[int, ...] = ROBOTS
+    methods: tuple[str, ...] = METHODS
+    iterations: int = 1000
+    seed: int = 0
+    init: str = "odometry"
+    partition: str = "metis"
+    out: Path = Path("results/scalability")
+
+
+def cell_specs(config: ScalabilityConfig) -> list[Spec]:
+    return [
+        {
+            "experiment": "table1",
+            "dataset": config.dataset,
+            "robots": robots,
+            "method": method,
+            "seed": config.seed,
+            "iterations": config.iterations,
+            "init": config.init,
+            "partition": config.partition,
+        }
+        for robots in config.robots
+        for method in config.methods
+    ]
+
+
+def run_scalability(config: ScalabilityConfig, *, progress: bool = True) -> pd.DataFrame:
+    """Compute (or reuse) every cell; write ``scalability.csv``, ``scalability.png``/``.pdf``."""
+    cache = CellCache(config.out / "cells")
+    optimum = run_cells(
+        [table1.optimum_spec(config.dataset)], table1.compute_optimum, cache, progress=progress
+    )[0]["F_star"]
+    frame = pd.DataFrame(
+        run_cells(cell_specs(config), table1.compute_cell, cache, progress=progress)
+    )
+    frame["F_star"] = optimum
+    frame["gap"] = frame["F"] / optimum - 1.0
+    config.out.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(config.out / "scalability.csv", index=False, float_format="%.10g")
+    scalability_figure(frame, config.out / "scalability")
+    write_manifest(config.out)
+    return frame
+
+
+def scalability_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
+    """F (left) and parallel time (right) against n, one line per method; PNG and PDF."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.6))
+    for method, group in frame.groupby("method", sort=False):
+        group = group.sort_values("robots")
+        left.plot(group["robots"], group["F"], marker="o", label=method)
+        right.plot(group["robots"], group["parallel_s"], marker="o", label=method)
+    left.axhline(float(frame["F_star"].iloc[0]), color="k", linestyle="--", label="F*")
+    for ax, label in ((left, "F"), (right, "parallel time [s]")):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("robots n")
+        ax.set_ylabel(label)
+    left.legend(fontsize="small")
+    left.set_title(f"{frame['dataset'].iloc[0]}: objective")
+    right.set_title("time")
+    fig.tight_layout()
+    paths = [stem.with_suffix(".png"), stem.with_suffix(".pdf")]
+    for path in paths:
+        fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return paths
