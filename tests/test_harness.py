@@ -1,0 +1,128 @@
+"""The harness: cached cells, resumption, reports."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from popbench.harness import reports
+from popbench.harness.cache import CellCache, cell_key
+from popbench.harness.paper import PAPER_TABLE1, paper_table1_cell, paper_table2_cell
+from popbench.harness.runner import run_cells
+
+
+def test_cell_key_is_order_independent_and_distinguishes_values():
+    assert cell_key({"a": 1, "b": "x"}) == cell_key({"b": "x", "a": 1})
+    assert cell_key({"a": 1}) != cell_key({"a": 2})
+
+
+def test_cache_round_trip_and_torn_file(tmp_path):
+    cache = CellCache(tmp_path)
+    spec = {"dataset": "mit", "robots": 3}
+    assert cache.get(spec) is None
+    cache.put(spec, {"F": 1.5})
+    assert cache.get(spec) == {"F": 1.5}
+    (tmp_path / f"{cell_key(spec)}.json").write_text('{"spec": ')  # a torn write
+    assert cache.get(spec) is None
+
+
+def test_interrupted_run_resumes_without_recomputing_finished_cells(tmp_path):
+    specs = [{"dataset": "d", "robots": n, "method": "m"} for n in range(5)]
+    computed = []
+
+    def crash_at_third(spec):
+        if spec["robots"] == 2:
+            raise KeyboardInterrupt  # the user pressed Ctrl-C in the third cell
+        computed.append(spec["robots"])
+        return {"robots": spec["robots"], "F": float(spec["robots"])}
+
+    cache = CellCache(tmp_path / "cells")
+    with pytest.raises(KeyboardInterrupt):
+        run_cells(specs, crash_at_third, cache, progress=False)
+    assert computed == [0, 1]
+
+    def count(spec):
+        computed.append(spec["robots"])
+        return {"robots": spec["robots"], "F": float(spec["robots"])}
+
+    rows = run_cells(specs, count, CellCache(tmp_path / "cells"), progress=False)
+    assert computed == [0, 1, 2, 3, 4]  # 0 and 1 were not recomputed
+    assert [row["robots"] for row in rows] == [0, 1, 2, 3, 4]
+    assert len(list((tmp_path / "cells").glob("*.json"))) == 5
+    stored = json.loads(next((tmp_path / "cells").glob("*.json")).read_text())
+    assert set(stored) == {"spec", "row"}
+
+
+def test_paper_numbers_transcribed():
+    assert set(PAPER_TABLE1) == {
+        "m3500",
+        "m3500b",
+        "m3500c",
+        "city10k",
+        "grid1000",
+        "intel",
+        "mit",
+        "csail",
+    }
+    assert paper_table1_cell("m3500", 3, "cc-pgo") == (1123, 575.64)
+    assert paper_table1_cell("csail", 35, "prop-v2") == (894, 7.27)
+    assert paper_table1_cell("city10k", 7, "mm-pgo") == (5235, 175.04)
+    assert paper_table2_cell("csail", 0.1, "prop-v1") == (3.6e3, 0.89, 0.80)
+    assert paper_table1_cell("intel", 5, "cc-pgo") is None
+
+
+def _frame():
+    rows = []
+    for n in (3, 7):
+        for method, f in (("cc-pgo", 50.0), ("mm-pgo", 41.0)):
+            rows.append(
+                {
+                    "dataset": "mit",
+                    "poses": 808,
+                    "edges": 827,
+                    "robots": n,
+                    "method": method,
+                    "init": "odometry",
+                    "F": f + n,
+                    "gap": f / 40 - 1,
+                    "parallel_s": 0.1 * n,
+                    "wall_s": 1.0,
+                    "seed": 0,
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def test_table1_markdown_and_latex_show_ours_beside_the_paper_and_bold_the_best():
+    markdown = reports.table1_markdown(_frame())
+    assert "| mit (808, 827) | F | 53 (2048) | **44** (1021) |" in markdown
+    latex = reports.table1_latex(_frame())
+    assert r"\textbf{44} (1021)" in latex
+    assert latex.count(r"\\") == 1 + 4  # header + one row per metric
+
+
+def test_table1_figure_writes_png_and_pdf(tmp_path):
+    paths = reports.table1_figure(_frame(), tmp_path / "table1")
+    assert all(path.stat().st_size > 1000 for path in paths)
+
+
+def test_outliers_tables_report_mean_and_spread():
+    frame = pd.DataFrame(
+        {
+            "dataset": "intel",
+            "rate": 0.1,
+            "method": "mm-pgo",
+            "seed": [0, 1],
+            "F": [10.0, 14.0],
+            "precision": [0.5, 0.7],
+            "recall": [1.0, 1.0],
+            "paper_F": 3.4e3,
+            "paper_precision": 0.69,
+            "paper_recall": 0.55,
+        }
+    )
+    markdown = reports.outliers_markdown(frame)
+    assert f"12 ± {np.std([10.0, 14.0], ddof=1):.4g} (3400)" in markdown
+    assert "0.6 ± 0.1414 (0.69)" in markdown
+    assert r"$\pm$" in reports.outliers_latex(frame)
