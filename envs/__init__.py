@@ -1,1 +1,170 @@
-"""popbench envs."""
+"""Multi-agent PGO environments (paper §III-B): TorchRL (:class:`envs.torchrl_env.PGOEnv`) and
+PettingZoo (:class:`envs.pettingzoo_env.PGOParallelEnv`) over one batched torch core
+(:mod:`envs.core`).
+
+Problems come from the synthetic generator (:func:`popbench.synthetic.make_problem`, a new seeded
+problem every episode) or from a dataset (``dataset="intel"`` or a path: the same problem every
+episode, split among ``robots`` by :meth:`DistributedProblem.from_graph`).
+
+Padding maxima (``max_vertices``, ``max_edges``, ``max_degree``) default to: for a dataset, its
+exact local-graph maxima; for the synthetic generator, the maxima over :data:`PROBE_PROBLEMS`
+problems drawn with fixed seeds (independent of ``seed``, so envs with different seeds share their
+specs), times :data:`PADDING_MARGIN`, rounded up to a multiple of 8. A later problem that does not
+fit raises a one-line :class:`popbench.errors.ValueRangeError` naming the option to raise.
+
+torchrl and pettingzoo are imported only when an env is made.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+from envs.observation import Dimensions
+from popbench.distributed import DistributedProblem
+
+if TYPE_CHECKING:
+    from envs.pettingzoo_env import PGOParallelEnv
+    from envs.torchrl_env import PGOEnv
+
+PROBE_PROBLEMS = 32
+PROBE_SEED = 2**31 - 1  # probe seeds PROBE_SEED + k: apart from the training streams
+PADDING_MARGIN = 1.25
+
+__all__ = ["make_problem_source", "make_pettingzoo_env", "make_torchrl_env"]
+
+
+def make_problem_source(
+    robots: int = 7,
+    noise: str = "V2",
+    dataset: str | None = None,
+    poses_per_robot: int = 60,
+    loop_ratio: float = 0.15,
+    partition: str = "metis",
+    initial: str = "odometry",
+    max_vertices: int | None = None,
+    max_edges: int | None = None,
+    max_degree: int | None = None,
+) -> tuple[Any, Dimensions, bool]:
+    """``(source, dims, has_ground_truth)``: a ``seed -> DistributedProblem`` callable and the
+    padding maxima (see the module docstring).
+
+    Args:
+        robots: robots (agents) per problem.
+        noise: synthetic noise level ``"V1"``/``"V2"``/``"V3"``.
+        dataset: a registered dataset name or a g2o/TORO path; ``None`` for synthetic problems.
+        poses_per_robot, loop_ratio: synthetic generator options.
+        partition: ``"metis"`` or ``"contiguous"`` (datasets only).
+        initial: dataset initial estimate: ``"odometry"`` (composition, default) or ``"file"``.
+        max_vertices, max_edges, max_degree: padding maxima overriding the defaults.
+    """
+    if dataset is None:
+        source = _Synthetic(robots, noise, poses_per_robot, loop_ratio)
+        probes = [source(PROBE_SEED + k) for k in range(PROBE_PROBLEMS)]
+        dims = Dimensions.of(probes, PADDING_MARGIN, multiple=8)
+        has_truth = True
+    else:
+        problem = dataset_problem(dataset, robots, partition, initial)
+        source = _Constant(problem)
+        dims = Dimensions.of([problem])
+        has_truth = problem.graph.ground_truth is not None
+    dims = Dimensions(
+        max_vertices or dims.vertices, max_edges or dims.edges, max_degree or dims.degree
+    )
+    return source, dims, has_truth
+
+
+def dataset_problem(
+    dataset: str, robots: int, partition: str = "metis", initial: str = "odometry"
+) -> DistributedProblem:
+    """A dataset split among ``robots`` (:meth:`DistributedProblem.from_graph`, seed 0), with the
+    odometry-composition initial estimate unless ``initial="file"``."""
+    from popbench.datasets import load
+    from popbench.errors import ValueRangeError
+
+    graph = load(dataset)
+    if initial == "odometry":
+        graph = graph.replace(poses=graph.odometry_initial())
+    elif initial != "file":
+        raise ValueRangeError("initial", initial, "odometry, file")
+    return DistributedProblem.from_graph(graph, robots, partition, initial=initial)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Synthetic:
+    """A problem source drawing :func:`popbench.synthetic.make_problem` problems by seed."""
+
+    robots: int
+    noise: str
+    poses_per_robot: int
+    loop_ratio: float
+
+    def __call__(self, seed: int) -> DistributedProblem:
+        from popbench.synthetic import make_problem
+
+        return make_problem(
+            self.robots, self.noise, self.poses_per_robot, self.loop_ratio, seed=seed
+        )
+
+
+class _Constant:
+    """A problem source that ignores the seed (a fixed dataset problem)."""
+
+    def __init__(self, problem: DistributedProblem) -> None:
+        self.problem = problem
+
+    def __call__(self, seed: int) -> DistributedProblem:
+        return self.problem
+
+
+def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Separate problem-source options from env options."""
+    source_keys = {
+        "dataset",
+        "poses_per_robot",
+        "loop_ratio",
+        "partition",
+        "initial",
+        "max_vertices",
+        "max_edges",
+        "max_degree",
+    }
+    source = {key: value for key, value in options.items() if key in source_keys}
+    env = {key: value for key, value in options.items() if key not in source_keys}
+    return source, env
+
+
+def make_torchrl_env(
+    robots: int = 7,
+    batch_size: int = 32,
+    noise: str = "V2",
+    seed: int = 0,
+    device: str = "cpu",
+    **options: Any,
+) -> PGOEnv:
+    """A batched TorchRL :class:`~envs.torchrl_env.PGOEnv` (``B = batch_size`` problems).
+
+    Options: those of :func:`make_problem_source` (``dataset``, ``poses_per_robot``,
+    ``loop_ratio``, ``partition``, ``initial``, ``max_*``) and of ``PGOEnv`` (``delta_max``,
+    ``reward``, ``invalid_edge``, ``dtype``). ``reward`` defaults to ``"localisation"`` when the
+    problems have ground truth, else ``"F"``.
+    """
+    from envs.torchrl_env import PGOEnv
+
+    source_options, env_options = _split_options(options)
+    source, dims, has_truth = make_problem_source(robots, noise, **source_options)
+    env_options.setdefault("reward", "localisation" if has_truth else "F")
+    return PGOEnv(source, robots, dims, batch_size, seed, device, **env_options)
+
+
+def make_pettingzoo_env(
+    robots: int = 7, noise: str = "V2", seed: int = 0, **options: Any
+) -> PGOParallelEnv:
+    """A PettingZoo :class:`~envs.pettingzoo_env.PGOParallelEnv` (same options as
+    :func:`make_torchrl_env`, without ``batch_size``/``device``/``dtype``)."""
+    from envs.pettingzoo_env import PGOParallelEnv
+
+    source_options, env_options = _split_options(options)
+    source, dims, has_truth = make_problem_source(robots, noise, **source_options)
+    env_options.setdefault("reward", "localisation" if has_truth else "F")
+    return PGOParallelEnv(source, robots, dims, seed, **env_options)

@@ -1,0 +1,433 @@
+"""Batched torch core of the multi-agent PGO environment (paper §III-B, DESIGN "The environment").
+
+One :class:`PGOCore` holds ``B`` independent problems of ``n`` robots (agents). It is the single
+implementation behind the TorchRL env (:mod:`envs.torchrl_env`, any ``B``) and the PettingZoo env
+(:mod:`envs.pettingzoo_env`, ``B = 1``).
+
+State layout: local copies
+    Agent ``i`` holds its local graph (:class:`popbench.distributed.LocalGraph`: owned vertices,
+    then separator copies; every edge with at least one owned endpoint) and its *own copy* of
+    the estimates of those vertices. A separator pose is therefore duplicated in several agents'
+    copies and a move by one agent never touches another agent's copy: simultaneous actions never
+    conflict, each agent's step costs O(degree of the moved vertex), and reconciling the copies
+    is the consensus step that runs after the episode (paper Fig. 1; :mod:`popbench.consensus`).
+
+Padding
+    Every agent's graph is padded to ``V`` vertices, ``E`` edges and ``D`` incident edges per
+    vertex (:class:`Dimensions`). Internally one extra *trash* vertex (index ``V``) and one extra
+    *trash* edge slot (index ``E``) absorb the writes of padding and of the no-op action, so a step
+    is branch-free.
+
+Action (per agent)
+    ``edge`` ∈ {0..E}: a local edge ``p → q`` not processed yet; ``E`` is the *no-op*, valid only
+    once every local edge of the agent was processed (agents with fewer edges than the longest one
+    wait with it). ``delta = (δx [m], δy [m], δθ [rad])`` clipped to ``|δ| ≤ Δmax`` componentwise.
+    The correction moves the head ``q`` in the tail's frame (eq. C)::
+
+        x_q ← x_p ∘ (between(x_p, x_q) + Δ),     angle wrapped to [−π, π)
+
+    i.e. the relative pose of ``q`` seen from ``p`` changes by exactly ``Δ``; ``x_p`` stays. The
+    edge is then marked processed. Default ``Δmax = (0.5 m, 0.5 m, 0.3 rad)``: with the synthetic
+    noise levels (σ 0.06–0.22 per edge on x, y [m] and θ [rad]) one step can cancel ≈ 2–8 σ of
+    translation noise and ≈ 1.4–5 σ of rotation noise, but cannot teleport a pose (the paper's
+    safety constraint, §III-B footnote).
+
+Localisation error ``L`` of agent ``i`` (reward signal)
+    ``L_i(x) = Σ_{e ∈ E_i} κ_e wrap(θ_q − θ_p − θ*_e)² + τ_e ‖R(θ_p)ᵀ(t_q − t_p) − t*_e‖²``
+    over the agent's local edges, with its own copies of the poses and the κ/τ weights of F.
+    ``reward="localisation"`` (default, needs ground truth): ``z*_e = between(x_gt,p, x_gt,q)``,
+    the true relative pose — the localisation χ² of the local graph against ground truth. It is
+    gauge-free (no alignment needed), zero exactly when the local estimate equals the truth up to
+    one rigid motion, and it changes only on the edges incident to the moved vertex.
+    ``reward="F"``: ``z*_e = z̃_e`` (the measurements), i.e. ``L_i`` is the objective F of the local
+    graph (no ground truth needed).
+
+Reward (per agent, per step ``t``)
+    ``r_t = clip(tanh((L_{t−1} − L_t) / (L_{t−1} + ε)), −1, 1)``; on the step that ends the episode
+    every agent also gets ``log((L_0 + ε) / (L_T + ε))`` (ε = :data:`EPSILON`; the ``+ε`` in the
+    numerator keeps an exact ``L_0 = 0`` finite).
+
+Horizon
+    ``T = max_i |E_i|`` steps: each step every agent with edges left processes one of them, so the
+    episode ends exactly when every local edge of every agent was processed once.
+
+Cost per step
+    Residuals, per-edge costs and ``L`` are updated incrementally on the ``D`` edge slots incident
+    to each moved vertex (precomputed, padded incidence lists). Building the observation copies
+    the O(V + E) dynamic buffers (poses → node features, residuals, masks).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from envs.observation import REWARDS, Dimensions, pack_problem
+from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
+
+DEFAULT_DELTA_MAX = (0.5, 0.5, 0.3)  # (δx [m], δy [m], δθ [rad])
+EPSILON = 1e-6  # ε of the reward's normalisation and terminal log-ratio
+INVALID_EDGE_MODES = ("raise", "repair")
+
+ProblemSource = Callable[[int], DistributedProblem]
+
+
+# ----- torch SE(2) (mirrors popbench.se2) -------------------------------------------------------
+
+
+def wrap(angle: torch.Tensor) -> torch.Tensor:
+    """Wrap angles (rad) to ``[-π, π)`` (as :func:`popbench.se2.wrap`)."""
+    return torch.remainder(angle + torch.pi, 2.0 * torch.pi) - torch.pi
+
+
+def between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a⁻¹ ∘ b`` for poses ``(..., 3)``: pose ``b`` in the frame of ``a``."""
+    c, s = torch.cos(a[..., 2]), torch.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    return torch.stack([c * dx + s * dy, -s * dx + c * dy, wrap(b[..., 2] - a[..., 2])], -1)
+
+
+def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a ∘ b`` for poses ``(..., 3)``: pose ``b`` (in frame ``a``) in the world frame."""
+    c, s = torch.cos(a[..., 2]), torch.sin(a[..., 2])
+    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    return torch.stack([x, y, wrap(a[..., 2] + b[..., 2])], -1)
+
+
+def residuals(
+    tail_poses: torch.Tensor, head_poses: torch.Tensor, measurements: torch.Tensor
+) -> torch.Tensor:
+    """``[r_t, r_θ]`` (``(..., 3)``) as :func:`popbench.objective.residuals`:
+    ``r_t = R_pᵀ(t_q − t_p) − t̃`` [m], ``r_θ = wrap(θ_q − θ_p − θ̃)`` [rad]."""
+    relative = between(tail_poses, head_poses)
+    r_t = relative[..., :2] - measurements[..., :2]
+    return torch.cat([r_t, wrap(relative[..., 2:] - measurements[..., 2:])], -1)
+
+
+def edge_costs(r: torch.Tensor, kappa: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    """Per-edge ``κ r_θ² + τ ‖r_t‖²`` (paper eq. 1 terms), shape ``r.shape[:-1]``."""
+    return kappa * r[..., 2] ** 2 + tau * (r[..., 0] ** 2 + r[..., 1] ** 2)
+
+
+def _gather_rows(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``out[g, k] = values[g, index[g, k]]``; ``values (G, S, ...)``, ``index (G, K)``."""
+    tail = values.shape[2:]
+    expanded = index.reshape(index.shape + (1,) * len(tail)).expand(index.shape + tail)
+    return torch.gather(values, 1, expanded)
+
+
+def _scatter_rows(values: torch.Tensor, index: torch.Tensor, rows: torch.Tensor) -> None:
+    """In place ``values[g, index[g, k]] = rows[g, k]`` (inverse of :func:`_gather_rows`)."""
+    tail = values.shape[2:]
+    expanded = index.reshape(index.shape + (1,) * len(tail)).expand(index.shape + tail)
+    values.scatter_(1, expanded, rows)
+
+
+# ----- seeded problem stream --------------------------------------------------------------------
+
+
+class ProblemSampler:
+    """Seeded problems per batch element: episode ``k`` of element ``b`` uses the seed
+    ``SeedSequence([seed, b, k])`` (so every element has its own reproducible stream)."""
+
+    def __init__(self, source: ProblemSource, batch: int, seed: int = 0) -> None:
+        self.source = source
+        self.batch = batch
+        self.seed(seed)
+
+    def seed(self, seed: int) -> None:
+        """Restart every element's stream from ``seed``."""
+        self.base_seed = int(seed)
+        self.episodes = np.zeros(self.batch, np.int64)
+
+    def draw(self, element: int) -> DistributedProblem:
+        """The next problem of batch element ``element``."""
+        key = [self.base_seed, element, int(self.episodes[element])]
+        self.episodes[element] += 1
+        return self.source(int(np.random.SeedSequence(key).generate_state(1)[0]))
+
+
+# ----- the batched state ------------------------------------------------------------------------
+
+
+class StepResult(NamedTuple):
+    """Output of :meth:`PGOCore.step`: ``reward (B, n)``, ``done (B,)`` (the episode ended),
+    ``agent_done (B, n)`` (the agent has no edge left) and ``repaired (B, n)`` (an invalid edge
+    choice was replaced, ``invalid_edge="repair"`` only)."""
+
+    reward: torch.Tensor
+    done: torch.Tensor
+    agent_done: torch.Tensor
+    repaired: torch.Tensor
+
+
+_STATIC = (
+    "vertex_ids",
+    "node_mask",
+    "owned",
+    "log_degree",
+    "tails",
+    "heads",
+    "edge_ids",
+    "edge_mask",
+    "measurements",
+    "targets",
+    "kappa",
+    "tau",
+    "edge_attr",
+    "incident",
+    "num_edges",
+)
+
+
+class PGOCore:
+    """The batched environment state and its dynamics (see the module docstring).
+
+    Args:
+        num_agents: robots ``n`` per problem.
+        dims: padding maxima.
+        batch: number of independent problems ``B``.
+        delta_max: ``Δmax`` (δx [m], δy [m], δθ [rad]).
+        reward: ``"localisation"`` (ground truth) or ``"F"``.
+        invalid_edge: ``"raise"`` (a :class:`ValueRangeError` on a processed/padding edge or on
+            the no-op while edges remain) or ``"repair"`` (replace it by the agent's lowest-index
+            unprocessed edge, or the no-op when none is left).
+        device: torch device of every tensor.
+        dtype: floating dtype of the pose state (observations are float32).
+    """
+
+    def __init__(
+        self,
+        num_agents: int,
+        dims: Dimensions,
+        batch: int,
+        delta_max: Sequence[float] = DEFAULT_DELTA_MAX,
+        reward: str = "localisation",
+        invalid_edge: str = "raise",
+        device: torch.device | str = "cpu",
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
+        if reward not in REWARDS:
+            raise ValueRangeError("reward", reward, ", ".join(REWARDS))
+        if invalid_edge not in INVALID_EDGE_MODES:
+            raise ValueRangeError("invalid_edge", invalid_edge, ", ".join(INVALID_EDGE_MODES))
+        delta_max = tuple(float(value) for value in delta_max)
+        if len(delta_max) != 3 or min(delta_max) <= 0:
+            raise ValueRangeError("delta_max", delta_max, "three positive numbers")
+        self.num_agents, self.dims, self.batch = num_agents, dims, batch
+        self.reward_kind, self.invalid_edge = reward, invalid_edge
+        self.device, self.dtype = torch.device(device), dtype
+        self.delta_max = torch.tensor(delta_max, dtype=dtype, device=self.device)
+        self.problems: list[DistributedProblem | None] = [None] * batch
+        self.tensors: dict[str, torch.Tensor] = {}
+
+    # -- episode start ---------------------------------------------------------------------------
+
+    def load(self, problems: Sequence[DistributedProblem], elements: Sequence[int]) -> None:
+        """Start new episodes on the batch elements ``elements`` with ``problems``.
+
+        Static buffers are replaced out of place (tensors handed out earlier stay valid); the
+        first call must cover every element.
+        """
+        elements = list(elements)
+        for problem in problems:
+            if problem.num_robots != self.num_agents:
+                raise ValueRangeError(
+                    "robots", problem.num_robots, f"{self.num_agents} (this environment's agents)"
+                )
+        packs = [pack_problem(problem, self.dims, self.reward_kind) for problem in problems]
+        fresh = {
+            key: torch.as_tensor(np.stack([pack[key] for pack in packs])).to(self.device)
+            for key in packs[0]
+        }
+        for key, value in fresh.items():
+            if value.is_floating_point() and key != "edge_attr":
+                fresh[key] = value.to(self.dtype)
+        if not self.tensors:
+            if sorted(elements) != list(range(self.batch)):
+                raise ValueError("the first load must start every batch element")
+            order = torch.as_tensor(np.argsort(elements), device=self.device)
+            self.tensors = {key: value[order] for key, value in fresh.items()}
+        else:
+            index = torch.as_tensor(elements, device=self.device)
+            for key, value in fresh.items():
+                replaced = self.tensors[key].clone()
+                replaced[index] = value
+                self.tensors[key] = replaced
+        self._cache_edge_index()
+        for problem, element in zip(problems, elements, strict=True):
+            self.problems[element] = problem
+        self._restart(torch.as_tensor(elements, device=self.device))
+
+    def _restart(self, index: torch.Tensor) -> None:
+        """Recompute the dynamic buffers of the elements ``index`` from their initial poses."""
+        t = self.tensors
+        poses = t["poses"][index]
+        tails, heads = t["tails"][index], t["heads"][index]
+        flat_poses = poses.flatten(0, 1)
+        tail_poses = _gather_rows(flat_poses, tails.flatten(0, 1)).view(tails.shape + (3,))
+        head_poses = _gather_rows(flat_poses, heads.flatten(0, 1)).view(heads.shape + (3,))
+        r = residuals(tail_poses, head_poses, t["measurements"][index])
+        costs = edge_costs(
+            residuals(tail_poses, head_poses, t["targets"][index]),
+            t["kappa"][index],
+            t["tau"][index],
+        )
+        processed = torch.zeros(tails.shape, dtype=torch.bool, device=self.device)
+        processed[..., -1] = True  # the no-op slot
+        dynamic = {
+            "residuals": r,
+            "costs": costs,
+            "processed": processed,
+            "loss": costs.sum(-1),
+            "remaining": t["num_edges"][index].clone(),
+        }
+        dynamic["initial_loss"] = dynamic["loss"].clone()
+        for key, value in dynamic.items():
+            if key not in t:
+                t[key] = torch.empty(
+                    (self.batch,) + value.shape[1:], dtype=value.dtype, device=self.device
+                )
+            t[key][index] = value
+
+    # -- dynamics --------------------------------------------------------------------------------
+
+    def action_mask(self) -> torch.Tensor:
+        """``(B, n, E + 1)`` bool: unprocessed local edges, or only the no-op (index ``E``) when
+        the agent has none left."""
+        t = self.tensors
+        edges_left = t["edge_mask"] & ~t["processed"][..., :-1]
+        none_left = (t["remaining"] == 0).unsqueeze(-1)
+        return torch.cat([edges_left, none_left], -1)
+
+    def step(self, edge: torch.Tensor, delta: torch.Tensor) -> StepResult:
+        """Apply one joint action: ``edge (B, n)`` int, ``delta (B, n, 3)``."""
+        t = self.tensors
+        b, n, e = self.batch, self.num_agents, self.dims.edges
+        mask = self.action_mask()
+        edge = edge.to(self.device, torch.int64).reshape(b, n)
+        in_range = (edge >= 0) & (edge <= e)
+        chosen = torch.gather(mask, 2, edge.clamp(0, e).unsqueeze(-1)).squeeze(-1) & in_range
+        repaired = ~chosen
+        if self.invalid_edge == "raise":
+            if bool(repaired.any()):
+                bad = repaired.nonzero()[0].tolist()
+                raise ValueRangeError(
+                    "edge action",
+                    int(edge[bad[0], bad[1]]),
+                    f"an unprocessed local edge (action mask) for element {bad[0]}, agent {bad[1]}",
+                )
+        else:
+            edge = torch.where(chosen, edge, mask.to(torch.int8).argmax(-1))
+        was_done = t["remaining"].sum(-1) == 0
+
+        g = b * n
+        flat_edge = edge.reshape(g, 1)
+        poses = t["poses"].view(g, -1, 3)
+        tail = torch.gather(t["tails"].view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
+        head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
+        clipped = torch.maximum(
+            torch.minimum(delta.to(self.device, self.dtype), self.delta_max), -self.delta_max
+        ).reshape(g, 1, 3)
+        x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
+        moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
+        _scatter_rows(poses, head, moved)
+
+        incident = _gather_rows(t["incident"].view(g, -1, self.dims.degree), head).squeeze(1)
+        processed = t["processed"].view(g, -1)
+        processed.scatter_(1, flat_edge, True)
+        t["remaining"] -= (edge < e).to(torch.int64)
+
+        previous = t["loss"].clone()
+        t["loss"] += self._refresh_edges(incident).view(b, n)
+        gain = (previous - t["loss"]) / (previous + EPSILON)
+        reward = torch.tanh(gain).clamp(-1.0, 1.0)
+        agent_done = t["remaining"] == 0
+        done = agent_done.all(-1)
+        finishing = (done & ~was_done).unsqueeze(-1)
+        bonus = torch.log((t["initial_loss"] + EPSILON) / (t["loss"] + EPSILON))
+        reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
+        return StepResult(reward, done, agent_done, repaired)
+
+    def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:
+        """Recompute residuals and target costs of the edge slots ``incident (G, D)`` in place;
+        return the change of ``L`` per agent, ``(G,)``."""
+        t = self.tensors
+        g = incident.shape[0]
+        poses = t["poses"].view(g, -1, 3)
+        tails = torch.gather(t["tails"].view(g, -1), 1, incident)
+        heads = torch.gather(t["heads"].view(g, -1), 1, incident)
+        x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
+        r = residuals(x_p, x_q, _gather_rows(t["measurements"].view(g, -1, 3), incident))
+        cost = edge_costs(
+            residuals(x_p, x_q, _gather_rows(t["targets"].view(g, -1, 3), incident)),
+            torch.gather(t["kappa"].view(g, -1), 1, incident),
+            torch.gather(t["tau"].view(g, -1), 1, incident),
+        )
+        costs = t["costs"].view(g, -1)
+        real = incident < self.dims.edges  # padding slots point at the trash slot E
+        old = torch.gather(costs, 1, incident)
+        change = torch.where(real, cost - old, torch.zeros_like(cost)).sum(-1)
+        _scatter_rows(t["residuals"].view(g, -1, 3), incident, r)
+        costs.scatter_(1, incident, cost)
+        return change
+
+    # -- observation -----------------------------------------------------------------------------
+
+    def observation(self) -> dict[str, torch.Tensor]:
+        """Per-agent padded observation, every entry with leading shape ``(B, n)``.
+
+        * ``node_features (V, 6)`` float32: pose in the frame of the agent's first owned pose
+          (x, y [m], sin θ, cos θ), ``log(1 + degree)``, owned flag (0 = separator copy);
+        * ``node_mask (V,)``; ``edge_index (2, E)`` int64 local (tail, head), 0 on padding;
+        * ``edge_attr (E, 11)`` (:func:`edge_attributes`); ``edge_mask (E,)``;
+        * ``processed (E,)``; ``residuals (E, 3)`` float32 current ``[r_t, r_θ]`` against the
+          measurements (0 on padding).
+        """
+        t = self.tensors
+        v, e = self.dims.vertices, self.dims.edges
+        poses = t["poses"][:, :, :v]
+        relative = between(poses[:, :, :1], poses)
+        node_mask = t["node_mask"]
+        features = torch.stack(
+            [
+                relative[..., 0],
+                relative[..., 1],
+                torch.sin(relative[..., 2]),
+                torch.cos(relative[..., 2]),
+                t["log_degree"],
+                t["owned"].to(self.dtype),
+            ],
+            -1,
+        ) * node_mask.unsqueeze(-1)
+        return {
+            "node_features": features.to(torch.float32),
+            "node_mask": node_mask,
+            "edge_index": t["edge_index"],
+            "edge_attr": t["edge_attr"],
+            "edge_mask": t["edge_mask"],
+            "processed": t["processed"][..., :e].clone(),
+            "residuals": t["residuals"][..., :e, :].to(torch.float32),
+        }
+
+    def _cache_edge_index(self) -> None:
+        """``edge_index (B, n, 2, E)``: local (tail, head), 0 on padding (a new tensor)."""
+        t = self.tensors
+        e = self.dims.edges
+        index = torch.stack([t["tails"][..., :e], t["heads"][..., :e]], -2)
+        t["edge_index"] = torch.where(t["edge_mask"].unsqueeze(-2), index, 0)
+
+    # -- read-out --------------------------------------------------------------------------------
+
+    def local_poses(self, element: int) -> list[np.ndarray]:
+        """Each agent's current local copy ``(n_r, 3)`` of element ``element``, rows in
+        ``problem.local_vertices(r)`` order (feed to consensus / ``problem.assemble``)."""
+        t = self.tensors
+        poses = t["poses"][element].detach().cpu().numpy()
+        counts = t["node_mask"][element].sum(-1).cpu().numpy()
+        return [poses[agent, :count] for agent, count in enumerate(counts)]
