@@ -7,7 +7,15 @@ learned agents (``agents``), the environments (``envs``) and the classical basel
 """
 
 from popbench.errors import PopbenchError
-from popbench.graph import EdgeKind, PoseGraph
 
 __all__ = ["EdgeKind", "PoseGraph", "PopbenchError"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    # EdgeKind and PoseGraph load NumPy/SciPy on first use, so `popbench --help` stays fast.
+    if name in ("EdgeKind", "PoseGraph"):
+        from popbench import graph
+
+        return getattr(graph, name)
+    raise AttributeError(f"module 'popbench' has no attribute {name!r}")

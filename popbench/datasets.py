@@ -421,6 +421,8 @@ def load(name_or_path: str | Path) -> PoseGraph:
     path = Path(name_or_path).expanduser()
     if path.is_file():
         return read_graph(path)
+    if path.exists():
+        raise DatasetError(f"not a pose-graph file: {path}")
     if path.suffix or os.sep in key:
         raise DatasetError(f"no such file: {path}")
     raise _unknown(key)
