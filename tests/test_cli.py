@@ -183,3 +183,9 @@ def test_solve_prints_a_human_summary(capsys: pytest.CaptureFixture) -> None:
     assert cli.main(["solve", "mit", "--iterations", "3", "--robots", "2"]) == 0
     out = capsys.readouterr().out
     assert "lm on mit" in out and "F_chordal" in out
+
+
+def test_datasets_list_shows_every_name(capsys: pytest.CaptureFixture) -> None:
+    assert cli.main(["datasets", "list"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in datasets.DATASETS)
