@@ -128,7 +128,7 @@ def _x_update(
     weight: np.ndarray,
     steps: int,
     damping: float,
-) -> np.ndarray:
+) -> tuple[np.ndarray, float]:
     """Damped Gauss–Newton on ``f_i(x) + ½ Σ (x_s ⊖ target_s)ᵀ W_s (x_s ⊖ target_s)``.
 
     ``target = z − u`` (so that ``x ⊖ target ≈ (x ⊖ z) + u``), ``weight = ρΛ``.
@@ -179,7 +179,7 @@ def _x_update(
             damping *= 10.0
         if not accepted:
             break
-    return poses
+    return poses, damping
 
 
 def _prepare(problem: DistributedProblem, local_poses: list[np.ndarray]):
@@ -288,7 +288,7 @@ def admm_consensus(
                 continue  # no separator: nothing couples this robot
             start = time.perf_counter()
             target = minus(z[separator_of[robot.copy_ids]], u[robot.copy_ids])
-            local_poses[k] = _x_update(
+            local_poses[k], damping[k] = _x_update(
                 robot, local_poses[k], target, weight[robot.copy_ids], local_steps, damping[k]
             )
             slowest = max(slowest, time.perf_counter() - start)

@@ -166,10 +166,10 @@ class DistributedProblem:
         edge_ids = np.arange(graph.num_edges)
         crossing = owner_tail != owner_head
         # (robot, edge) membership: every edge for its tail's owner, crossing edges also for the
-        # head's owner; a stable sort by robot keeps edge ids ascending within each robot.
+        # head's owner; sorted by robot, then edge id.
         member_robot = np.concatenate([owner_tail, owner_head[crossing]])
         member_edge = np.concatenate([edge_ids, edge_ids[crossing]])
-        order = np.argsort(member_robot, kind="stable")
+        order = np.lexsort((member_edge, member_robot))
         edges_per_robot = np.split(
             member_edge[order], np.cumsum(np.bincount(member_robot, None, n))[:-1]
         )
