@@ -1,0 +1,316 @@
+"""The GA-SAC actor: one recurrent gated GNN with two heads, shared by every robot (paper §III-D).
+
+Per decision step and robot:
+1. the encoder embeds the robot's local graph (nodes h, latent = masked mean of h, gates z);
+2. the memory (K GRUs) is refreshed with [latent ‖ embedding of the previously chosen edge ‖
+   previous correction / Δmax];
+3. the edge head scores every edge from [h_p ‖ h_q ‖ a_pq ‖ memory] (→ 200 → 1), masked by the
+   environment's action mask (unprocessed real edges; the no-op slot E only once none is left);
+   an edge is drawn with a straight-through Gumbel-softmax (arg-max when deterministic);
+4. the correction head (2 × 512 MLP) maps the chosen edge's embedding to a tanh-squashed
+   Gaussian on (−1, 1)³, scaled by Δmax.
+
+Parameters are shared across robots (actor replication): a team of any size runs the same module.
+Log-probabilities of the correction are those of δ/Δmax (the constant log-Jacobian of the scaling
+is dropped), so the continuous target entropy is independent of Δmax.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from tensordict import TensorDictBase
+from tensordict.nn import InteractionType, TensorDictModuleBase
+from tensordict.nn.probabilistic import interaction_type
+from torch import Tensor, nn
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import TensorDictPrimer
+
+from agents.config import ModelConfig
+from agents.encoder import Encoding, GraphBatch, GraphEncoder, Memory, edge_embeddings
+
+DETERMINISTIC_INTERACTIONS = (
+    InteractionType.DETERMINISTIC,
+    InteractionType.MODE,
+    InteractionType.MEAN,
+)
+
+
+def mlp(sizes: Sequence[int], activation: type[nn.Module] = nn.ReLU) -> nn.Sequential:
+    """Linear layers of the given widths with `activation` between them (none after the last)."""
+    layers: list[nn.Module] = []
+    for k, (d_in, d_out) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
+        layers.append(nn.Linear(d_in, d_out))
+        if k < len(sizes) - 2:
+            layers.append(activation())
+    return nn.Sequential(*layers)
+
+
+def resolve_deterministic(deterministic: bool | None) -> bool:
+    """`deterministic` if given, else from tensordict's interaction type (RANDOM/None → sample)."""
+    if deterministic is not None:
+        return deterministic
+    return interaction_type() in DETERMINISTIC_INTERACTIONS
+
+
+def tanh_gaussian_log_prob(pre_tanh: Tensor, mean: Tensor, log_std: Tensor) -> Tensor:
+    """log-density of y = tanh(u), u ~ N(mean, exp(log_std)²), summed over the last dim.
+
+    Uses log(1 − tanh²u) = 2(log 2 − u − softplus(−2u)), exact and stable for large |u|.
+    """
+    gaussian = (
+        -0.5 * ((pre_tanh - mean) / log_std.exp()) ** 2 - log_std - 0.5 * math.log(2 * math.pi)
+    )
+    log_jacobian = 2.0 * (math.log(2.0) - pre_tanh - F.softplus(-2.0 * pre_tanh))
+    return (gaussian - log_jacobian).sum(-1)
+
+
+def masked_log_softmax(logits: Tensor, mask: Tensor) -> Tensor:
+    """log_softmax over the last dim with masked-out entries at −inf."""
+    return torch.log_softmax(logits.masked_fill(~mask, float("-inf")), dim=-1)
+
+
+def categorical_entropy(log_probs: Tensor, mask: Tensor) -> Tensor:
+    """−Σ p log p over allowed entries (masked entries contribute 0 and a zero gradient, not NaN:
+    the −inf is replaced before the product, since where() would still back-propagate 0·∞)."""
+    finite = torch.where(mask, log_probs, torch.zeros_like(log_probs))
+    return -(finite.exp() * finite * mask).sum(-1)
+
+
+@dataclass
+class ActorOutput:
+    """Everything the environment, the critic and the loss need from one actor pass (G graphs).
+
+    Attributes:
+        edge: [G] long, chosen local edge index (E = the no-op, forced when no edge is left).
+        edge_weights: [G, E + 1] one-hot of `edge`; straight-through Gumbel-softmax gradient when
+            sampled (feed it to the critic to differentiate through the discrete choice).
+        edge_log_probs: [G, E + 1] log π(e | s) (−inf outside the action mask).
+        edge_entropy: [G] exact entropy of the edge distribution.
+        action_mask: [G, E + 1] bool, the support of the edge distribution.
+        delta: [G, 3] correction (δx, δy, δθ), |·| ≤ Δmax.
+        delta_log_prob: [G] log π(δ/Δmax | s, e).
+        memory: [G, K, H] refreshed memory state (the next step's input).
+        encoding: the encoder output (gates, latent) for the gate penalty and inlier flags.
+    """
+
+    edge: Tensor
+    edge_weights: Tensor
+    edge_log_probs: Tensor
+    edge_entropy: Tensor
+    action_mask: Tensor
+    delta: Tensor
+    delta_log_prob: Tensor
+    memory: Tensor
+    encoding: Encoding
+
+
+class HybridActor(nn.Module):
+    """Recurrent gated GNN + edge selector + correction head (parameters shared by all robots)."""
+
+    def __init__(self, node_dim: int, edge_dim: int, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.encoder = GraphEncoder(
+            node_dim=node_dim,
+            edge_dim=edge_dim,
+            hidden=config.hidden,
+            layers=config.layers,
+            edge_hidden=config.edge_hidden,
+            activation=config.activation,
+            gate_hidden=config.gate_hidden,
+            gate_temperature=config.gate_temperature,
+            gate_inter_loop_bias=config.gate_inter_loop_bias,
+            gate_init_logit=config.gate_init_logit,
+        )
+        edge_dim_out = 2 * config.hidden + edge_dim
+        self.memory = Memory(
+            config.hidden + edge_dim_out + 3, config.memory_hidden, config.memory_layers
+        )
+        head_input = edge_dim_out + config.memory_hidden
+        self.edge_head = mlp([head_input, config.edge_head_hidden, 1])
+        self.correction_head = mlp([head_input, *config.correction_hidden, 6])
+        self.register_buffer("delta_max", torch.tensor(config.delta_max, dtype=torch.float32))
+
+    def initial_memory(self, num_graphs: int, device: torch.device | str = "cpu") -> Tensor:
+        """[G, K, H] zeros: the memory at the start of an episode."""
+        return torch.zeros(num_graphs, self.memory.layers, self.memory.hidden, device=device)
+
+    def forward(
+        self,
+        graphs: GraphBatch,
+        memory: Tensor,
+        prev_edge: Tensor,
+        prev_delta: Tensor,
+        deterministic: bool | None = None,
+    ) -> ActorOutput:
+        """One decision step for G robots.
+
+        Args:
+            graphs: the G local graphs.
+            memory: [G, K, H] memory state from the previous step (zeros at reset).
+            prev_edge: [G, E + 1] one-hot of the previously chosen edge (zeros at reset).
+            prev_delta: [G, 3] previous correction in the environment's units (zeros at reset).
+            deterministic: arg-max edge, tanh(mean) correction and noise-free gates; None reads
+                tensordict's interaction type (sampling unless DETERMINISTIC/MODE/MEAN).
+        """
+        deterministic = resolve_deterministic(deterministic)
+        encoding = self.encoder(graphs, deterministic)
+        embeddings = edge_embeddings(encoding.nodes, graphs)  # [G, E + 1, 2d + d_e]
+        prev_embedding = torch.einsum("ge,ged->gd", prev_edge.to(embeddings.dtype), embeddings)
+        memory_input = torch.cat(
+            [encoding.pooled, prev_embedding, prev_delta / self.delta_max], dim=-1
+        )
+        memory = self.memory(memory_input, memory)
+        context = memory[:, -1]
+        features = torch.cat(
+            [embeddings, context.unsqueeze(1).expand(-1, embeddings.shape[1], -1)], dim=-1
+        )
+
+        log_probs = masked_log_softmax(self.edge_head(features).squeeze(-1), graphs.action_mask)
+        edge, edge_weights = self._choose_edge(log_probs, deterministic)
+        chosen = torch.einsum("ge,ged->gd", edge_weights, features)
+
+        mean, log_std = self.correction_head(chosen).chunk(2, dim=-1)
+        log_std = log_std.clamp(*self.config.log_std_bounds)
+        if deterministic:
+            pre_tanh = mean
+        else:
+            pre_tanh = mean + log_std.exp() * torch.randn_like(mean)
+        return ActorOutput(
+            edge=edge,
+            edge_weights=edge_weights,
+            edge_log_probs=log_probs,
+            edge_entropy=categorical_entropy(log_probs, graphs.action_mask),
+            action_mask=graphs.action_mask,
+            delta=self.delta_max * torch.tanh(pre_tanh),
+            delta_log_prob=tanh_gaussian_log_prob(pre_tanh, mean, log_std),
+            memory=memory,
+            encoding=encoding,
+        )
+
+    def _choose_edge(self, log_probs: Tensor, deterministic: bool) -> tuple[Tensor, Tensor]:
+        """Arg-max, or a straight-through Gumbel-softmax sample: (index [G], weights [G, E])."""
+        if deterministic:
+            edge = log_probs.argmax(-1)
+            return edge, F.one_hot(edge, log_probs.shape[-1]).to(log_probs.dtype)
+        uniform = torch.rand_like(log_probs).clamp(1e-10, 1.0 - 1e-10)
+        gumbel = -torch.log(-torch.log(uniform))
+        soft = torch.softmax((log_probs + gumbel) / self.config.gumbel_temperature, dim=-1)
+        edge = soft.argmax(-1)
+        hard = F.one_hot(edge, log_probs.shape[-1]).to(soft.dtype)
+        return edge, hard - soft.detach() + soft
+
+
+AGENTS = "agents"
+OBSERVATION_KEY = (AGENTS, "observation")
+ACTION_MASK_KEY = (AGENTS, "action_mask")
+EDGE_ACTION_KEY = (AGENTS, "action", "edge")
+DELTA_ACTION_KEY = (AGENTS, "action", "delta")
+MEMORY_KEY = (AGENTS, "memory")
+PREV_EDGE_KEY = (AGENTS, "prev_edge")
+PREV_DELTA_KEY = (AGENTS, "prev_delta")
+OBSERVATION_FIELDS = (
+    "node_features",
+    "node_mask",
+    "edge_index",
+    "edge_attr",
+    "edge_mask",
+    "processed",
+    "residuals",
+)
+RECURRENT_KEYS = (MEMORY_KEY, PREV_EDGE_KEY, PREV_DELTA_KEY)
+
+
+def recurrent_inputs(
+    tensordict: TensorDictBase, actor: HybridActor, lead: torch.Size, choices: int, next_: bool
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(memory [G, K, H], prev_edge [G, E + 1], prev_delta [G, 3]) read from `tensordict`
+    (under "next" when `next_`), zeros where a key is missing (start of an episode)."""
+    prefix = ("next",) if next_ else ()
+    device = tensordict.device or actor.delta_max.device
+    defaults = (
+        torch.zeros(*lead, actor.memory.layers, actor.memory.hidden, device=device),
+        torch.zeros(*lead, choices, device=device),
+        torch.zeros(*lead, 3, device=device),
+    )
+    values = []
+    for key, default in zip(RECURRENT_KEYS, defaults, strict=True):
+        value = tensordict.get(prefix + key, None)
+        value = default if value is None else value
+        values.append(value.reshape(-1, *default.shape[len(lead) :]).to(torch.float32))
+    return values[0], values[1], values[2]
+
+
+class GASACPolicy(TensorDictModuleBase):
+    """TensorDict wrapper of `HybridActor` for TorchRL collectors and evaluation.
+
+    Reads ("agents", "observation", …), ("agents", "action_mask") and the recurrent state
+    ("agents", "memory" | "prev_edge" | "prev_delta") (zeros when absent); writes the action
+    ("agents", "action", "edge" | "delta"), the log-probabilities, the gate inlier flags
+    ("agents", "inlier", [n, E]) and the next recurrent state under ("next", "agents", …),
+    where TorchRL's step_mdp moves it to the next step's root (as for its GRU/LSTM modules).
+    `primer()` makes the env reset the recurrent state to zeros.
+    """
+
+    def __init__(self, actor: HybridActor) -> None:
+        super().__init__()
+        self.actor = actor
+        self.in_keys = [
+            *(OBSERVATION_KEY + (name,) for name in OBSERVATION_FIELDS),
+            ACTION_MASK_KEY,
+            *RECURRENT_KEYS,
+        ]
+        self.out_keys = [
+            EDGE_ACTION_KEY,
+            DELTA_ACTION_KEY,
+            (AGENTS, "edge_log_prob"),
+            (AGENTS, "delta_log_prob"),
+            (AGENTS, "inlier"),
+            *(("next",) + key for key in RECURRENT_KEYS),
+        ]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action_mask = tensordict.get(ACTION_MASK_KEY)
+        lead, choices = action_mask.shape[:-1], action_mask.shape[-1]
+        graphs = GraphBatch.from_observation(tensordict.get(OBSERVATION_KEY), action_mask)
+        memory, prev_edge, prev_delta = recurrent_inputs(
+            tensordict, self.actor, lead, choices, next_=False
+        )
+        out = self.actor(graphs, memory, prev_edge, prev_delta)
+        chosen_log_prob = out.edge_log_probs.gather(-1, out.edge.unsqueeze(-1)).squeeze(-1)
+        values = {
+            EDGE_ACTION_KEY: out.edge,
+            DELTA_ACTION_KEY: out.delta,
+            (AGENTS, "edge_log_prob"): chosen_log_prob,
+            (AGENTS, "delta_log_prob"): out.delta_log_prob,
+            (AGENTS, "inlier"): out.encoding.inliers(),
+            ("next",) + MEMORY_KEY: out.memory,
+            ("next",) + PREV_EDGE_KEY: out.edge_weights,
+            ("next",) + PREV_DELTA_KEY: out.delta,
+        }
+        for key, value in values.items():
+            tensordict.set(key, value.detach().reshape(*lead, *value.shape[1:]))
+        return tensordict
+
+    def primer(self, num_agents: int, choices: int) -> TensorDictPrimer:
+        """A `TensorDictPrimer` that adds the zero recurrent state at every reset.
+
+        Args:
+            num_agents: n.
+            choices: E + 1, the size of the edge action.
+        """
+        shapes = {
+            "memory": (num_agents, self.actor.memory.layers, self.actor.memory.hidden),
+            "prev_edge": (num_agents, choices),
+            "prev_delta": (num_agents, 3),
+        }
+        agents = Composite(
+            {name: Unbounded(shape=shape) for name, shape in shapes.items()},
+            shape=(num_agents,),
+        )
+        return TensorDictPrimer(Composite(agents=agents), reset_key="_reset", expand_specs=True)

@@ -1,0 +1,156 @@
+"""Configuration dataclasses for GA-SAC, split BenchMARL-style into model / algorithm / experiment.
+
+Values are the paper's (§IV-A, REFERENCES.md §1.5) where it gives them; every other value is a
+choice written down here with its reason (REFERENCES.md §1.8 lists the gaps).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network sizes of the actor (recurrent gated GNN + two heads) and the central critic.
+
+    Attributes:
+        hidden: node-embedding width d of every GNN layer (paper: 128).
+        layers: number of edge-conditioned layers, each followed by an edge gate (paper: 5).
+        edge_hidden: width K of φ_edge's hidden layer; W_pq = B_0 + Σ_k φ_k(a_pq) B_k is then the
+            exact output of the MLP φ_edge (see encoder.EdgeConditionedConv), not an approximation.
+        activation: node-update non-linearity σ of eq. node_update; "sigmoid" as the paper writes.
+        gate_hidden: hidden width of P_gate (paper: "lightweight"; our choice).
+        gate_temperature: hard-concrete temperature τ of eq. bernoulli (Louizos et al.: 2/3).
+        gate_inter_loop_bias: β > 0 added to the logit of inter-robot loop closures (eq. logit).
+        gate_init_logit: initial bias of P_gate's output so that gates start open (z ≈ 1).
+        memory_layers: K stacked GRU cells (paper: unspecified; 2).
+        memory_hidden: GRU state width (= hidden by default).
+        edge_head_hidden: hidden width of the edge-selection head (paper: 200).
+        gumbel_temperature: Gumbel-softmax temperature of the edge selector (paper: unspecified; 1).
+        correction_hidden: widths of the correction MLP (paper: 2 × 512).
+        log_std_bounds: clamp of the Gaussian log-std before the tanh squash.
+        delta_max: bound |δx|, |δy|, |δθ| ≤ Δmax (metres, metres, radians); the environment's
+            action spec overrides it in the trainer.
+        critic_hidden: critic GNN width; critic_layers its depth (non-recurrent, gated).
+        critic_projection: width of the joint projection (paper: 512).
+        critic_mlp: hidden widths of the critic MLP after the projection (paper: 512, 256).
+    """
+
+    hidden: int = 128
+    layers: int = 5
+    edge_hidden: int = 16
+    activation: str = "sigmoid"
+    gate_hidden: int = 64
+    gate_temperature: float = 2.0 / 3.0
+    gate_inter_loop_bias: float = 0.5
+    gate_init_logit: float = 2.0
+    memory_layers: int = 2
+    memory_hidden: int = 128
+    edge_head_hidden: int = 200
+    gumbel_temperature: float = 1.0
+    correction_hidden: tuple[int, ...] = (512, 512)
+    log_std_bounds: tuple[float, float] = (-5.0, 2.0)
+    delta_max: tuple[float, float, float] = (0.5, 0.5, 0.25)
+    critic_hidden: int = 128
+    critic_layers: int = 5
+    critic_projection: int = 512
+    critic_mlp: tuple[int, ...] = (512, 256)
+
+
+@dataclass(frozen=True)
+class AlgorithmConfig:
+    """GA-SAC hyper-parameters (paper §IV-A) and the entropy / gate choices the paper leaves open.
+
+    Attributes:
+        gamma: discount (paper 0.99).
+        buffer_size: replay capacity in transitions (paper 30,000).
+        batch_size: minibatch (paper 64).
+        warmup_frames: environment frames collected before the first update (paper 10,000).
+        actor_lr / critic_lr / alpha_lr: Adam learning rates (paper: 3e-4 actors, 3e-5 critic).
+        tau: soft target update rate, applied after every optimisation step (paper 1e-3).
+        updates_per_batch: optimisation steps per collected batch.
+        init_alpha_edge / init_alpha_delta: initial temperatures of the two heads.
+        edge_entropy_ratio: target entropy of the edge head = ratio · log(#selectable edges),
+            a per-state fraction of the uniform distribution's entropy (discrete-SAC convention).
+        delta_target_entropy: target entropy of the correction head, measured on δ/Δmax
+            ∈ (−1, 1)³; −3 = −dim(δ), the SAC heuristic.
+        gate_l1: weight of the L1 penalty on the gates z (paper: unspecified).
+        max_grad_norm: gradient clipping of every optimiser step.
+    """
+
+    gamma: float = 0.99
+    buffer_size: int = 30_000
+    batch_size: int = 64
+    warmup_frames: int = 10_000
+    actor_lr: float = 3e-4
+    critic_lr: float = 3e-5
+    alpha_lr: float = 3e-4
+    tau: float = 1e-3
+    updates_per_batch: int = 1
+    init_alpha_edge: float = 0.1
+    init_alpha_delta: float = 0.1
+    edge_entropy_ratio: float = 0.5
+    delta_target_entropy: float = -3.0
+    gate_l1: float = 1e-3
+    max_grad_norm: float = 10.0
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """What to train on and how long; where to write.
+
+    Attributes:
+        noise: training environment "V1", "V2" or "V3" (paper §IV-A; the main table uses V2).
+        robots: team size n (the critic is built for this n).
+        num_envs: environments batched in one TorchRL env.
+        seed: seeds the environment, torch and the replay sampler.
+        frames: total environment frames (one frame = one batched env step of one env).
+        frames_per_batch: frames per collector batch.
+        device: "cpu" or "cuda".
+        checkpoint_interval: frames between checkpoints.
+        eval_interval: frames between held-out evaluations (F reduction).
+        eval_problems: number of held-out synthetic problems.
+        out_dir: run directory (checkpoints, CSV, PNG).
+        progress: show a progress bar.
+    """
+
+    noise: str = "V2"
+    robots: int = 7
+    num_envs: int = 32
+    seed: int = 0
+    frames: int = 1_000_000
+    frames_per_batch: int = 1_024
+    device: str = "cpu"
+    checkpoint_interval: int = 50_000
+    eval_interval: int = 50_000
+    eval_problems: int = 8
+    out_dir: str = "runs/ga-sac"
+    progress: bool = True
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The three parts together (what `popbench train` builds and `agents.trainer.train` reads)."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    algorithm: AlgorithmConfig = field(default_factory=AlgorithmConfig)
+    experiment: ExperimentConfig = field(default_factory=ExperimentConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain nested dict (JSON-serialisable) for checkpoints."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        """Inverse of `to_dict`; unknown keys raise TypeError, tuples are restored."""
+        return cls(
+            model=_build(ModelConfig, data.get("model", {})),
+            algorithm=_build(AlgorithmConfig, data.get("algorithm", {})),
+            experiment=_build(ExperimentConfig, data.get("experiment", {})),
+        )
+
+
+def _build(kind: type, values: dict[str, Any]) -> Any:
+    tuple_fields = {f.name for f in fields(kind) if str(f.type).startswith("tuple")}
+    return kind(**{k: tuple(v) if k in tuple_fields else v for k, v in values.items()})

@@ -1,0 +1,210 @@
+"""GA-SAC loss (paper §III-D, eq. sac): soft actor-critic for a hybrid (edge, correction) policy.
+
+TorchRL's SACLoss handles one continuous action and DiscreteSACLoss one categorical action, so
+this is a `LossModule` of its own that reuses TorchRL's functional-parameter machinery
+(`convert_to_functional`, target parameters updated by `SoftUpdate`) and `set_keys`.
+
+Per agent i (rewards are per agent; the critic gives one Q_i per agent, MAAC-style):
+
+  policy π_i(e, δ | s) = π(e | s) · π(δ | s, e)
+  soft value V_i(s) = min_k Q̄_k,i(s, a) + α_e H[π(· | s)] − α_δ log π(δ | s, e),  a ~ π
+  critic:  L_Q = ½ Σ_k E[(Q_k,i(s, a) − y_i)²],  y_i = r_i + γ (1 − terminated_i) V_i(s′)
+  actor:   L_π = E[−α_e H[π(· | s)] + α_δ log π(δ | s, e) − min_k Q_k,i(s, ã)] + λ_gate · mean z
+  α_e:     L = E[log α_e · (H[π(· | s)] − H̄_e(s))],   H̄_e(s) = ratio · log |allowed edges|
+  α_δ:     L = −E[log α_δ · (log π(δ | s, e) + H̄_δ)],  H̄_δ = −3
+
+The edge entropy is exact (a sum over the masked categorical) rather than a sampled −log π(e),
+which removes one source of variance. Q̄ uses the target critic parameters. The actor
+differentiates through the edge choice with the straight-through Gumbel-softmax one-hot and
+through δ with the reparameterised tanh-Gaussian; the critic parameters are detached there.
+Correction terms are masked out for agents whose only choice is the no-op (their δ is ignored
+by the environment). Each of the four losses reaches only its own parameter group, so they may
+be summed and back-propagated once.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from tensordict import TensorDict, TensorDictBase, TensorDictParams
+from tensordict.nn import TensorDictModule
+from torch import Tensor, nn
+from torchrl.objectives import LossModule
+
+from agents.actor import (
+    ACTION_MASK_KEY,
+    DELTA_ACTION_KEY,
+    EDGE_ACTION_KEY,
+    OBSERVATION_KEY,
+    ActorOutput,
+    HybridActor,
+    recurrent_inputs,
+)
+from agents.config import AlgorithmConfig
+from agents.critic import CentralCritic
+from agents.encoder import Encoding, GraphBatch
+
+
+class GASACLoss(LossModule):
+    """GA-SAC losses for a shared `HybridActor` and a `CentralCritic` (fixed n).
+
+    Args:
+        actor: the shared actor (its parameters are the ones the collector's policy uses).
+        critic: the central critic; target parameters are a copy updated by `SoftUpdate`.
+        config: γ, initial temperatures, target entropies and the gate L1 weight.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Tensordict keys (set with `set_keys`); "next" versions are read under ("next", …)."""
+
+        observation: tuple = OBSERVATION_KEY
+        action_mask: tuple = ACTION_MASK_KEY
+        action_edge: tuple = EDGE_ACTION_KEY
+        action_delta: tuple = DELTA_ACTION_KEY
+        reward: tuple = ("agents", "reward")
+        done: tuple = ("agents", "done")
+        terminated: tuple = ("agents", "terminated")
+
+    actor_network: TensorDictModule
+    critic_network: TensorDictModule
+    actor_network_params: TensorDictParams
+    critic_network_params: TensorDictParams
+    target_actor_network_params: TensorDictParams
+    target_critic_network_params: TensorDictParams
+
+    def __init__(self, actor: HybridActor, critic: CentralCritic, config: AlgorithmConfig) -> None:
+        super().__init__()
+        self.convert_to_functional(actor, "actor_network")
+        self.convert_to_functional(critic, "critic_network", create_target_params=True)
+        self.gamma = config.gamma
+        self.edge_entropy_ratio = config.edge_entropy_ratio
+        self.delta_target_entropy = config.delta_target_entropy
+        self.gate_l1 = config.gate_l1
+        self.log_alpha_edge = nn.Parameter(torch.tensor(math.log(config.init_alpha_edge)))
+        self.log_alpha_delta = nn.Parameter(torch.tensor(math.log(config.init_alpha_delta)))
+
+    # -- parameter groups (one optimiser each: lr 3e-4 actor, 3e-5 critic) ----------------------
+
+    def actor_parameters(self) -> list[nn.Parameter]:
+        return [p for p in self.actor_network_params.values(True, True) if p.requires_grad]
+
+    def critic_parameters(self) -> list[nn.Parameter]:
+        return [p for p in self.critic_network_params.values(True, True) if p.requires_grad]
+
+    def alpha_parameters(self) -> list[nn.Parameter]:
+        return [self.log_alpha_edge, self.log_alpha_delta]
+
+    # -- pieces --------------------------------------------------------------------------------
+
+    def _graphs(self, tensordict: TensorDictBase, next_: bool) -> GraphBatch:
+        prefix = ("next",) if next_ else ()
+        return GraphBatch.from_observation(
+            tensordict.get(prefix + self.tensor_keys.observation),
+            tensordict.get(prefix + self.tensor_keys.action_mask),
+        )
+
+    def _act(self, tensordict: TensorDictBase, graphs: GraphBatch, next_: bool) -> ActorOutput:
+        """A fresh (sampled) actor pass from the stored recurrent state."""
+        lead = tensordict.get(self.tensor_keys.action_mask).shape[:-1]
+        memory, prev_edge, prev_delta = recurrent_inputs(
+            tensordict, self.actor_network, lead, graphs.action_mask.shape[-1], next_
+        )
+        with self.actor_network_params.to_module(self.actor_network):
+            return self.actor_network(graphs, memory, prev_edge, prev_delta, deterministic=False)
+
+    def _agent_flag(self, tensordict: TensorDictBase, key: tuple, shape: torch.Size) -> Tensor:
+        """("next", key) as float [B, n]; a root-level (B, 1) flag is broadcast to the agents."""
+        value = tensordict.get(("next",) + key, None)
+        if value is None:
+            value = tensordict.get(("next", key[-1]))
+        return value.to(torch.float32).reshape(shape[0], -1).expand(shape).contiguous()
+
+    def _alphas(self) -> tuple[Tensor, Tensor]:
+        return self.log_alpha_edge.exp().detach(), self.log_alpha_delta.exp().detach()
+
+    @staticmethod
+    def _acting(out: ActorOutput) -> Tensor:
+        """[G] float: 1 where the chosen edge is a real edge (not the forced no-op)."""
+        return (out.edge < out.action_mask.shape[-1] - 1).to(out.delta.dtype)
+
+    # -- forward -------------------------------------------------------------------------------
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """Losses for a batch [B] of transitions; returns loss_* scalars and diagnostics."""
+        keys = self.tensor_keys
+        batch, agents = tensordict.get(keys.action_mask).shape[:2]
+        alpha_edge, alpha_delta = self._alphas()
+        graphs = self._graphs(tensordict, next_=False)
+        next_graphs = self._graphs(tensordict, next_=True)
+
+        # Soft Q target (eq. sac with separate temperatures for the two heads).
+        with torch.no_grad():
+            next_out = self._act(tensordict, next_graphs, next_=True)
+            with self.target_critic_network_params.to_module(self.critic_network):
+                next_q, _ = self.critic_network(next_graphs, next_out.edge_weights, next_out.delta)
+            entropy_bonus = (
+                alpha_edge * next_out.edge_entropy
+                - alpha_delta * self._acting(next_out) * next_out.delta_log_prob
+            )
+            soft_value = next_q.min(-1).values + entropy_bonus.view(batch, agents)
+            reward = tensordict.get(("next",) + keys.reward).reshape(batch, agents)
+            terminated = self._agent_flag(tensordict, keys.terminated, (batch, agents))
+            target = reward + self.gamma * (1.0 - terminated) * soft_value
+
+        choices = graphs.action_mask.shape[-1]
+        taken_edge = F.one_hot(tensordict.get(keys.action_edge).reshape(-1), choices)
+        taken_delta = tensordict.get(keys.action_delta).reshape(-1, 3)
+        q_taken, critic_encoding = self.critic_network_apply(graphs, taken_edge, taken_delta)
+        td_error = q_taken - target.unsqueeze(-1)
+        loss_qvalue = 0.5 * td_error.pow(2).sum(-1).mean()
+        loss_qvalue = loss_qvalue + self.gate_l1 * critic_encoding.gate_l1
+
+        # Actor: reparameterised hybrid action against the (detached) critic.
+        out = self._act(tensordict, graphs, next_=False)
+        with self.critic_network_params.detach().to_module(self.critic_network):
+            q_policy, _ = self.critic_network(graphs, out.edge_weights, out.delta)
+        acting = self._acting(out)
+        delta_log_prob = acting * out.delta_log_prob
+        loss_actor = (
+            -alpha_edge * out.edge_entropy
+            + alpha_delta * delta_log_prob
+            - q_policy.min(-1).values.reshape(-1)
+        ).mean() + self.gate_l1 * out.encoding.gate_l1
+
+        # Temperatures.
+        allowed = graphs.action_mask.sum(-1).to(out.delta.dtype)
+        edge_target = self.edge_entropy_ratio * torch.log(allowed)
+        loss_alpha_edge = (self.log_alpha_edge * (out.edge_entropy - edge_target).detach()).mean()
+        delta_gap = (out.delta_log_prob + self.delta_target_entropy).detach()
+        loss_alpha_delta = -(self.log_alpha_delta * acting * delta_gap).sum() / acting.sum().clamp(
+            min=1.0
+        )
+
+        return TensorDict(
+            {
+                "loss_actor": loss_actor,
+                "loss_qvalue": loss_qvalue,
+                "loss_alpha_edge": loss_alpha_edge,
+                "loss_alpha_delta": loss_alpha_delta,
+                "alpha_edge": alpha_edge,
+                "alpha_delta": alpha_delta,
+                "entropy_edge": out.edge_entropy.mean().detach(),
+                "target_entropy_edge": edge_target.mean().detach(),
+                "log_prob_delta": (delta_log_prob.sum() / acting.sum().clamp(min=1.0)).detach(),
+                "gate_mean": out.encoding.gate_l1.detach(),
+                "q_mean": q_taken.mean().detach(),
+                "td_error": td_error.abs().mean().detach(),
+            },
+            batch_size=[],
+        )
+
+    def critic_network_apply(
+        self, graphs: GraphBatch, edge_weights: Tensor, delta: Tensor
+    ) -> tuple[Tensor, Encoding]:
+        """The critic with its trainable parameters: ([B, n, 2] Q, its encoding)."""
+        with self.critic_network_params.to_module(self.critic_network):
+            return self.critic_network(graphs, edge_weights, delta)

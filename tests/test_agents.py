@@ -1,0 +1,384 @@
+"""GA-SAC agents: encoder equations against hand-made references, actor/critic contracts, loss."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch.distributions import Normal, TanhTransform, TransformedDistribution
+
+from agents.actor import GASACPolicy, HybridActor, tanh_gaussian_log_prob
+from agents.config import AlgorithmConfig, ModelConfig, TrainConfig
+from agents.critic import CentralCritic
+from agents.encoder import (
+    HARD_CONCRETE_STRETCH,
+    AdaptiveEdgeGate,
+    EdgeConditionedConv,
+    GraphBatch,
+    GraphEncoder,
+)
+
+NODE_DIM, EDGE_DIM = 6, 11
+SMALL = ModelConfig(
+    hidden=8,
+    layers=2,
+    edge_hidden=4,
+    gate_hidden=8,
+    memory_hidden=8,
+    edge_head_hidden=12,
+    correction_hidden=(16, 16),
+    critic_hidden=8,
+    critic_layers=2,
+    critic_projection=16,
+    critic_mlp=(16, 8),
+)
+
+
+def random_graphs(graphs: int, vertices: int = 7, edges: int = 9, seed: int = 0) -> GraphBatch:
+    """Padded random graphs: the last two edge slots and the last vertex are padding."""
+    gen = torch.Generator().manual_seed(seed)
+    edge_index = torch.randint(0, vertices - 1, (graphs, 2, edges), generator=gen)
+    edge_mask = torch.ones(graphs, edges, dtype=torch.bool)
+    edge_mask[:, -2:] = False
+    edge_index[:, :, -2:] = 0
+    node_mask = torch.ones(graphs, vertices, dtype=torch.bool)
+    node_mask[:, -1] = False
+    processed = torch.zeros(graphs, edges, dtype=torch.bool)
+    processed[:, 0] = True
+    action_mask = torch.cat([edge_mask & ~processed, torch.zeros(graphs, 1, dtype=torch.bool)], 1)
+    return GraphBatch(
+        node_features=torch.randn(graphs, vertices, NODE_DIM, generator=gen) * node_mask[..., None],
+        edge_index=edge_index,
+        edge_attr=torch.randn(graphs, edges, EDGE_DIM, generator=gen) * edge_mask[..., None],
+        edge_mask=edge_mask,
+        node_mask=node_mask,
+        residuals=torch.randn(graphs, edges, 3, generator=gen) * edge_mask[..., None],
+        processed=processed,
+        action_mask=action_mask,
+    )
+
+
+def make_encoder(**overrides) -> GraphEncoder:
+    options = dict(
+        node_dim=NODE_DIM,
+        edge_dim=EDGE_DIM,
+        hidden=8,
+        layers=2,
+        edge_hidden=4,
+        activation="sigmoid",
+        gate_hidden=8,
+        gate_temperature=2 / 3,
+        gate_inter_loop_bias=0.5,
+        gate_init_logit=2.0,
+    )
+    options.update(overrides)
+    return GraphEncoder(**options)
+
+
+# ----- encoder ------------------------------------------------------------------------------
+
+
+def test_ecc_layer_matches_explicit_per_edge_matrices() -> None:
+    """eqs. ecc_weight–node_update with W_pq materialised from φ_edge and a Python loop."""
+    torch.manual_seed(1)
+    conv = EdgeConditionedConv(in_dim=5, out_dim=4, edge_dim=3, edge_hidden=6, activation="sigmoid")
+    x = torch.randn(4, 5)
+    edge_index = torch.tensor([[1, 2, 3, 0], [0, 0, 1, 2]])  # (source q, target p)
+    attr = torch.randn(4, 3)
+    # φ_edge as a full MLP: its last linear layer maps [1, hidden] to vec(W) (d_out × d_in).
+    bases = conv.bases.weight.view(conv.num_bases, 4, 5)
+    hidden = conv.edge_net(attr)
+    coefficients = torch.cat([torch.ones(4, 1), hidden], 1)
+    weights = torch.einsum("mk,koi->moi", coefficients, bases)  # [M, d_out, d_in]
+    expected_messages = torch.stack([weights[m] @ x[edge_index[0, m]] for m in range(4)])
+    messages = conv.messages(x, edge_index, attr)
+    torch.testing.assert_close(messages, expected_messages)
+
+    degree = torch.tensor([2.0, 1.0, 1.0, 1.0])  # clamp(min=1) for the isolated vertex 3
+    out = conv(x, edge_index, messages, degree)
+    for p in range(4):
+        incoming = [m for m in range(4) if edge_index[1, m] == p]
+        mean = sum((expected_messages[m] for m in incoming), torch.zeros(4)) / max(len(incoming), 1)
+        expected = torch.sigmoid(conv.update_net(torch.cat([x[p], mean])))
+        torch.testing.assert_close(out[p], expected)
+
+
+def test_hard_concrete_gate_matches_its_distribution() -> None:
+    """z has point masses P(z=0) = σ(τ·logit(−a/(b−a)) − α), P(z=1) = σ(α − τ·logit(...))."""
+    gate = AdaptiveEdgeGate(
+        message_dim=2, hidden=4, temperature=2 / 3, inter_loop_bias=0.0, init_logit=0.0
+    )
+    alpha = torch.full((200_000,), 0.7)
+    gate.logits = lambda *args: alpha  # isolate eqs. bernoulli/minmax from P_gate
+    z = gate(None, None, None, None, deterministic=False)
+    a, b = HARD_CONCRETE_STRETCH
+    tau = 2 / 3
+
+    def logit(p: float) -> float:
+        return math.log(p / (1 - p))
+
+    p_zero = torch.sigmoid(torch.tensor(tau * logit(-a / (b - a)) - 0.7)).item()
+    p_one = torch.sigmoid(torch.tensor(0.7 - tau * logit((1 - a) / (b - a)))).item()
+    assert (z == 0).float().mean().item() == pytest.approx(p_zero, abs=0.005)
+    assert (z == 1).float().mean().item() == pytest.approx(p_one, abs=0.005)
+    assert bool(((z >= 0) & (z <= 1)).all())
+    z_eval = gate(None, None, None, None, deterministic=True)
+    expected = min(1.0, max(0.0, (b - a) * torch.sigmoid(torch.tensor(0.7 / tau)).item() + a))
+    torch.testing.assert_close(z_eval, torch.full_like(z_eval, expected))
+
+
+def test_gate_bias_favours_inter_robot_loop_closures() -> None:
+    gate = AdaptiveEdgeGate(
+        message_dim=2, hidden=4, temperature=0.5, inter_loop_bias=1.5, init_logit=0.0
+    )
+    messages, residuals, info = torch.zeros(2, 2), torch.zeros(2, 3), torch.zeros(2, 3)
+    logits = gate.logits(messages, residuals, info, torch.tensor([0.0, 1.0]))
+    assert (logits[1] - logits[0]).item() == pytest.approx(1.5)
+
+
+def test_closed_gates_silence_messages() -> None:
+    """With every gate at z = 0 a node update sees only its own embedding (eq. mask)."""
+    torch.manual_seed(0)
+    encoder = make_encoder(gate_init_logit=-1e4, layers=1)
+    graphs = random_graphs(2)
+    encoding = encoder(graphs, deterministic=True)
+    assert float(encoding.gates.detach().abs().max()) == 0.0
+    conv = encoder.convs[0]
+    x = graphs.node_features
+    expected = torch.sigmoid(conv.update_net(torch.cat([x, torch.zeros(2, 7, 8)], -1)))
+    torch.testing.assert_close(encoding.nodes, expected)
+    assert not bool(encoding.inliers().any())
+
+
+def test_encoder_is_invariant_to_padding_and_batching() -> None:
+    torch.manual_seed(0)
+    encoder = make_encoder()
+    graphs = random_graphs(3)
+    together = encoder(graphs, deterministic=True)
+    for g in range(3):
+        alone = encoder(
+            GraphBatch(*(getattr(graphs, f)[g : g + 1] for f in GraphBatch.__dataclass_fields__)),
+            deterministic=True,
+        )
+        torch.testing.assert_close(alone.pooled, together.pooled[g : g + 1])
+    # Garbage in padding slots must not leak into real outputs.
+    noisy = random_graphs(3)
+    noisy.edge_attr[:, -2:] = 100.0
+    noisy.edge_index[:, :, -2:] = 3
+    noisy.residuals[:, -2:] = 50.0
+    noisy.node_features[:, -1] = 7.0
+    out = encoder(noisy, deterministic=True)
+    real = graphs.node_mask
+    torch.testing.assert_close(out.nodes[real], together.nodes[real])
+    torch.testing.assert_close(out.pooled, together.pooled)
+    assert float(out.gates[:, :, -2:].abs().max()) == 0.0
+
+
+# ----- actor ----------------------------------------------------------------------------------
+
+
+def test_tanh_gaussian_log_prob_matches_torch_distributions() -> None:
+    mean, log_std = torch.randn(5, 3), torch.randn(5, 3) * 0.3
+    pre = mean + log_std.exp() * torch.randn(5, 3)
+    reference = TransformedDistribution(Normal(mean, log_std.exp()), [TanhTransform()])
+    expected = reference.log_prob(torch.tanh(pre)).sum(-1)
+    torch.testing.assert_close(
+        tanh_gaussian_log_prob(pre, mean, log_std), expected, rtol=1e-4, atol=1e-4
+    )
+
+
+def test_actor_respects_mask_bounds_and_entropy() -> None:
+    torch.manual_seed(0)
+    actor = HybridActor(NODE_DIM, EDGE_DIM, SMALL)
+    graphs = random_graphs(64)
+    graphs.action_mask[:5] = False
+    graphs.action_mask[:5, -1] = True  # nothing left: only the no-op
+    choices = graphs.action_mask.shape[-1]
+    out = actor(
+        graphs,
+        actor.initial_memory(64),
+        torch.zeros(64, choices),
+        torch.zeros(64, 3),
+        deterministic=False,
+    )
+    assert bool(graphs.action_mask.gather(1, out.edge[:, None]).all())
+    assert bool((out.edge[:5] == choices - 1).all())
+    assert bool((out.delta.abs() <= actor.delta_max).all())
+    probs = out.edge_log_probs.exp()
+    torch.testing.assert_close(probs.sum(-1), torch.ones(64))
+    log_p = torch.where(probs > 0, out.edge_log_probs, torch.zeros_like(probs))
+    torch.testing.assert_close(out.edge_entropy, -(probs * log_p).sum(-1))
+    assert float(out.edge_entropy[:5].abs().max()) == 0.0
+    torch.testing.assert_close(
+        out.edge_weights.detach(), torch.nn.functional.one_hot(out.edge, choices).float()
+    )
+    assert out.memory.shape == (64, SMALL.memory_layers, SMALL.memory_hidden)
+
+    det = actor(
+        graphs,
+        actor.initial_memory(64),
+        torch.zeros(64, choices),
+        torch.zeros(64, 3),
+        deterministic=True,
+    )
+    torch.testing.assert_close(det.edge, det.edge_log_probs.argmax(-1))
+
+
+def test_straight_through_edge_choice_carries_gradient_to_logits() -> None:
+    torch.manual_seed(0)
+    actor = HybridActor(NODE_DIM, EDGE_DIM, SMALL)
+    graphs = random_graphs(4)
+    choices = graphs.action_mask.shape[-1]
+    out = actor(
+        graphs,
+        actor.initial_memory(4),
+        torch.zeros(4, choices),
+        torch.zeros(4, 3),
+        deterministic=False,
+    )
+    (out.edge_weights * torch.arange(choices, dtype=torch.float32)).sum().backward()
+    assert actor.edge_head[0].weight.grad.abs().sum() > 0
+
+
+# ----- critic ---------------------------------------------------------------------------------
+
+
+def test_critic_shapes_and_action_sensitivity() -> None:
+    torch.manual_seed(0)
+    critic = CentralCritic(NODE_DIM, EDGE_DIM, agents=3, config=SMALL)
+    graphs = random_graphs(2 * 3)
+    choices = graphs.action_mask.shape[-1]
+    edges = torch.nn.functional.one_hot(torch.tensor([1, 2, 3, 4, 5, 6]), choices).float()
+    q, _ = critic(graphs, edges, torch.zeros(6, 3), deterministic=True)
+    assert q.shape == (2, 3, 2)
+    q_other, _ = critic(graphs, edges, torch.full((6, 3), 0.1), deterministic=True)
+    assert not torch.allclose(q, q_other)
+
+
+# ----- config ---------------------------------------------------------------------------------
+
+
+def test_config_round_trip_and_paper_defaults() -> None:
+    config = TrainConfig(model=SMALL)
+    assert TrainConfig.from_dict(config.to_dict()) == config
+    algorithm = AlgorithmConfig()
+    assert (algorithm.gamma, algorithm.buffer_size, algorithm.batch_size) == (0.99, 30_000, 64)
+    assert (algorithm.actor_lr, algorithm.critic_lr, algorithm.tau) == (3e-4, 3e-5, 1e-3)
+    assert (ModelConfig().hidden, ModelConfig().layers, ModelConfig().edge_head_hidden) == (
+        128,
+        5,
+        200,
+    )
+
+
+# ----- policy in the environment + loss ---------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def transitions():
+    """A short rollout of the small policy in a 3-robot synthetic env (10 poses per robot)."""
+    from torchrl.envs import TransformedEnv
+
+    from envs import make_torchrl_env
+
+    torch.manual_seed(0)
+    env = make_torchrl_env(robots=3, batch_size=4, noise="V2", seed=0, poses_per_robot=10)
+    actor = HybridActor(NODE_DIM, EDGE_DIM, SMALL)
+    policy = GASACPolicy(actor)
+    env = TransformedEnv(env, policy.primer(3, env.dims.edges + 1))
+    rollout = env.rollout(30, policy, break_when_any_done=False)
+    return actor, rollout
+
+
+def test_policy_rollout_valid_actions_and_memory_resets(transitions) -> None:
+    _, rollout = transitions
+    # The env raises on an invalid edge, so a full rollout already proves masking; check resets.
+    done = rollout["next", "done"][..., 0]
+    env_index, step = done[:, :-1].nonzero(as_tuple=True)
+    assert env_index.numel() > 0
+    after = rollout["agents", "prev_edge"][env_index, step + 1]
+    assert float(after.abs().sum()) == 0.0
+    assert float(rollout["agents", "memory"][env_index, step + 1].abs().sum()) == 0.0
+    torch.testing.assert_close(
+        rollout["agents", "memory"][:, 1:],
+        rollout["next", "agents", "memory"][:, :-1] * ~done[:, :-1, None, None, None],
+    )
+
+
+def make_loss(actor, **overrides):
+    from torchrl.objectives import SoftUpdate
+
+    from agents.loss import GASACLoss
+
+    critic = CentralCritic(NODE_DIM, EDGE_DIM, agents=3, config=SMALL)
+    loss = GASACLoss(actor, critic, AlgorithmConfig(**overrides))
+    return loss, SoftUpdate(loss, tau=0.5)
+
+
+def test_loss_shapes_and_gradients_reach_every_group(transitions) -> None:
+    actor, rollout = transitions
+    loss, _ = make_loss(actor)
+    batch = rollout.reshape(-1)[:12]
+    out = loss(batch)
+    for key in ("loss_actor", "loss_qvalue", "loss_alpha_edge", "loss_alpha_delta"):
+        assert out[key].shape == () and torch.isfinite(out[key])
+    loss.zero_grad()
+    sum(out[k] for k in out.keys() if k.startswith("loss_")).backward()
+    groups = {
+        "actor": loss.actor_parameters(),
+        "critic": loss.critic_parameters(),
+        "alpha": loss.alpha_parameters(),
+    }
+    for name, params in groups.items():
+        grads = [p.grad for p in params]
+        assert all(g is not None and torch.isfinite(g).all() for g in grads), name
+        assert sum(float(g.abs().sum()) for g in grads) > 0, name
+    # Every actor sub-network (encoder, gates, memory, both heads) receives gradient.
+    for module in ("encoder.convs", "encoder.gates", "memory", "edge_head", "correction_head"):
+        assert any(
+            float(p.grad.abs().sum()) > 0
+            for n, p in actor.named_parameters()
+            if n.startswith(module)
+        ), module
+    # The actor loss must not train the critic, nor the critic loss the actor.
+    loss.zero_grad()
+    out = loss(batch)
+    out["loss_actor"].backward()
+    assert all(p.grad is None or float(p.grad.abs().sum()) == 0 for p in loss.critic_parameters())
+
+
+def test_target_network_moves_only_with_soft_update(transitions) -> None:
+    actor, rollout = transitions
+    loss, updater = make_loss(actor)
+    target_before = loss.target_critic_network_params.clone()
+    optimiser = torch.optim.SGD(loss.critic_parameters(), lr=0.1)
+    loss(rollout.reshape(-1)[:16])["loss_qvalue"].backward()
+    optimiser.step()
+    assert (loss.target_critic_network_params == target_before).all()
+    source = loss.critic_network_params.detach().clone()
+    assert not (source == target_before).all()
+    updater.step()
+    expected = target_before.apply(lambda t, s: t + 0.5 * (s - t), source)
+    torch.testing.assert_close(loss.target_critic_network_params.to_dict(), expected.to_dict())
+
+
+@pytest.mark.parametrize(
+    ("overrides", "edge_sign", "delta_sign"),
+    [
+        (dict(edge_entropy_ratio=1.0, delta_target_entropy=50.0), 1, 1),  # targets above
+        (dict(edge_entropy_ratio=0.0, delta_target_entropy=-50.0), -1, -1),  # targets below
+    ],
+)
+def test_temperatures_move_toward_their_targets(transitions, overrides, edge_sign, delta_sign):
+    actor, rollout = transitions
+    loss, _ = make_loss(actor, **overrides)
+    optimiser = torch.optim.Adam(loss.alpha_parameters(), lr=0.05)
+    start = (loss.log_alpha_edge.item(), loss.log_alpha_delta.item())
+    for _ in range(3):
+        out = loss(rollout.reshape(-1)[:8])
+        optimiser.zero_grad()
+        (out["loss_alpha_edge"] + out["loss_alpha_delta"]).backward()
+        optimiser.step()
+    assert edge_sign * (loss.log_alpha_edge.item() - start[0]) > 0.1
+    assert delta_sign * (loss.log_alpha_delta.item() - start[1]) > 0.1
