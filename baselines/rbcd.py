@@ -1,0 +1,681 @@
+"""Riemannian block-coordinate descent (RBCD / RBCD++) on the rank-r Burer–Monteiro relaxation.
+
+The shared core of ``cc-pgo`` (Tian et al., dpgo) and ``ml-pgo`` (Li et al. 2024); see
+REFERENCES.md §2 and §4.
+
+**Relaxation** (d = 2). Pose ``i`` is lifted to ``X_i = [Y_i p_i] ∈ R^{r×3}`` with
+``Y_i ∈ St(2, r)`` (``Y_iᵀY_i = I``) and ``p_i ∈ R^r``. Arrays here hold the transpose: ``X`` is
+``(N, 3, r)`` with ``X[i, :2] = Y_iᵀ`` (orthonormal rows) and ``X[i, 2] = p_iᵀ``, so that
+``X.reshape(3N, r)`` has rows ``3i, 3i+1`` (rotation) and ``3i+2`` (translation) per pose. An edge
+``i → j`` with measurement ``T̃ = [[R̃, t̃], [0, 1]]`` and weights ``Ω = diag(κ, κ, τ)`` costs
+``‖X_j − X_i T̃‖²_Ω = κ‖Y_j − Y_i R̃‖²_F + τ‖p_j − p_i − Y_i t̃‖²``, so that
+
+    f(X) = ½ tr(Xᵀ Q X),   Q = Σ_e blocks  Q_ii += T̃ΩT̃ᵀ, Q_jj += Ω, Q_ij += −T̃Ω, Q_ji += −ΩT̃ᵀ,
+
+the connection Laplacian of REFERENCES §2.1, and ``2 f(X) = F_chordal`` when ``r = 2`` and the
+``Y_i`` are rotations (dpgo / MM-PGO print ``2f``).
+
+**Blocks and one iteration.** Robot α owns the rows of its poses (the problem's ``graph.robots``).
+Robots that share no edge have decoupled local problems, so the robot adjacency is coloured
+greedily and each colour class (an independent set) is one block. **One iteration = one round in
+which every robot of one colour class updates, in parallel**, with all other robots fixed; the
+class is chosen greedily (largest summed squared Riemannian-gradient norm, the block version of
+dpgo's greedy robot selection) or round-robin. With one robot per class this is exactly dpgo's
+greedy RBCD; with more, it is the parallel (Jacobi over an independent set) count, comparable to
+MM-PGO where every robot updates each iteration.
+
+**Local update** (dpgo ``PGOAgent::updateX``): with neighbours fixed, robot α minimises
+``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` over ``(St(2, r) × R^r)^{n_α}`` by a few Riemannian
+trust-region Newton iterations with truncated (Steihaug–Toint) CG, preconditioned by a cached
+sparse LU factor of ``Q_αα + λI`` (dpgo's preconditioner).
+
+**Acceleration** (RBCD++, REFERENCES §2.4), with ``B`` blocks (colour classes):
+``γ ← (1 + √(1 + 4B²γ²)) / (2B)``, ``α ← 1/(γB)``, ``Y ← Proj((1−α)X + αV)``, the selected block
+``X_b ← LocalOpt(Y)`` (others ``X ← Y``), ``V ← Proj(V + γ(X − Y))``. Restart ("fixed", cc-pgo):
+every ``restart_interval`` (30) iterations a plain update from ``X`` and ``V = X``, ``γ = 0``;
+("adaptive", ml-pgo, §4.1): whenever the objective increases, the iteration is redone as a plain
+update from ``X`` and the momentum reset.
+
+**Accounting.** ``parallel_s`` = Σ over rounds of (the slowest updating robot's local update time
++ the round's vectorised bookkeeping — extrapolation, gradient norms, objective — divided by the
+number of robots, as each robot would do its share). ``messages`` = Σ over rounds of the separator
+poses (poses with an edge to another robot) of every robot whose estimate changed that round
+(all robots in an accelerated round, the updated class in a plain one). ``history[k]`` =
+``2 f(X_k)``, the relaxation's F_chordal after round ``k`` (``history[0]`` at the start);
+the rounded estimate's F / F_chordal are evaluated once, at the end.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import SuperLU, eigsh, splu
+
+from popbench import objective, se2
+from popbench.errors import ValueRangeError
+from popbench.graph import PoseGraph
+from popbench.methods import Budget, Result
+
+PRECONDITIONER_SHIFT = 0.1  # λ in Q_αα + λI (dpgo)
+RESTART_INTERVAL = 30  # fixed restart period of RBCD++ (dpgo restartInterval)
+
+
+# ----- the data matrix and the cost ------------------------------------------------------------
+
+
+def measurement_matrices(graph: PoseGraph) -> np.ndarray:
+    """Homogeneous measurements ``T̃ = [[R̃, t̃], [0, 1]]``, ``(M, 3, 3)``."""
+    transforms = np.zeros((graph.num_edges, 3, 3))
+    transforms[:, :2, :2] = se2.rotation(graph.measurements[:, 2])
+    transforms[:, :2, 2] = graph.measurements[:, :2]
+    transforms[:, 2, 2] = 1.0
+    return transforms
+
+
+def connection_laplacian(graph: PoseGraph) -> sp.csr_matrix:
+    """The data matrix ``Q`` (REFERENCES §2.1), ``(3N, 3N)`` sparse symmetric PSD.
+
+    ``½ tr(Xᵀ Q X)`` with ``X`` ``(3N, r)`` is the relaxed cost ``f`` (module docstring).
+    """
+    kappa, tau = objective.weights(graph.information)
+    omega = np.zeros((graph.num_edges, 3, 3))
+    omega[:, 0, 0] = omega[:, 1, 1] = kappa
+    omega[:, 2, 2] = tau
+    transforms = measurement_matrices(graph)
+    t_omega = transforms @ omega  # T̃Ω, (M, 3, 3)
+    blocks = np.stack(
+        [t_omega @ np.swapaxes(transforms, 1, 2), omega, -t_omega, -np.swapaxes(t_omega, 1, 2)]
+    )  # (4, M, 3, 3): (i,i), (j,j), (i,j), (j,i)
+    block_rows = np.stack([graph.tails, graph.heads, graph.tails, graph.heads])  # (4, M)
+    block_cols = np.stack([graph.tails, graph.heads, graph.heads, graph.tails])
+    offsets = np.arange(3)
+    rows = 3 * block_rows[:, :, None, None] + offsets[:, None]
+    cols = 3 * block_cols[:, :, None, None] + offsets[None, :]
+    rows, cols = np.broadcast_arrays(rows, cols)
+    size = 3 * graph.num_poses
+    return sp.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(size, size))
+
+
+def flat(x: np.ndarray) -> np.ndarray:
+    """``(n, 3, r)`` → ``(3n, r)`` view."""
+    return x.reshape(-1, x.shape[-1])
+
+
+def relaxed_cost(x: np.ndarray, q_x: np.ndarray) -> float:
+    """``f = ½⟨X, QX⟩`` from ``X`` and ``QX``, both ``(N, 3, r)``."""
+    return 0.5 * float(np.vdot(x, q_x))
+
+
+def apply_q(q: sp.spmatrix, x: np.ndarray) -> np.ndarray:
+    """``Q X`` for ``X`` ``(n, 3, r)``, returned ``(n, 3, r)``."""
+    return (q @ flat(x)).reshape(x.shape)
+
+
+# ----- the manifold (St(2, r) × R^r)^n in the transposed layout --------------------------------
+
+
+def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise inner products ``⟨a_i, b_i⟩`` of ``(n, r)`` arrays, ``(n,)``."""
+    return np.einsum("nr,nr->n", a, b)
+
+
+def _symmetric_times_rows(s: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``S_i @ rows_i`` for symmetric 2×2 ``S`` stored as ``(n, 3)`` ``[S₀₀, S₀₁, S₁₁]`` and
+    ``rows`` ``(n, 2, r)``; returns ``(n, 2, r)``."""
+    r0, r1 = rows[:, 0], rows[:, 1]
+    s00, s01, s11 = s[:, 0:1], s[:, 1:2], s[:, 2:3]
+    return np.stack([s00 * r0 + s01 * r1, s01 * r0 + s11 * r1], axis=1)
+
+
+def multipliers(x: np.ndarray, euclidean_gradient: np.ndarray) -> np.ndarray:
+    """``Λ_i = sym(Y_iᵀ ∇_{Y_i} f)`` (the Lagrange multiplier estimates) as ``(n, 3)``
+    ``[Λ₀₀, Λ₀₁, Λ₁₁]``."""
+    y0, y1 = x[:, 0], x[:, 1]
+    g0, g1 = euclidean_gradient[:, 0], euclidean_gradient[:, 1]
+    off_diagonal = 0.5 * (_dot_rows(y0, g1) + _dot_rows(y1, g0))
+    return np.column_stack([_dot_rows(y0, g0), off_diagonal, _dot_rows(y1, g1)])
+
+
+def project_tangent(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Orthogonal projection of ``v`` ``(n, 3, r)`` onto the tangent space at ``x``:
+    ``V_Y − Y sym(Yᵀ V_Y)`` on the Stiefel rows, the translation row unchanged."""
+    out = v.copy()
+    out[:, :2] -= _symmetric_times_rows(multipliers(x, v), x[:, :2])
+    return out
+
+
+def orthonormalise_rows(m: np.ndarray) -> np.ndarray:
+    """Polar factor ``(M Mᵀ)^{-½} M`` of each ``(2, r)`` block of ``m`` ``(n, 2, r)`` (the nearest
+    matrix with orthonormal rows), with the closed-form 2×2 inverse square root."""
+    m0, m1 = m[:, 0], m[:, 1]
+    a, b, d = _dot_rows(m0, m0), _dot_rows(m0, m1), _dot_rows(m1, m1)  # Gram matrix G = M Mᵀ
+    s = np.sqrt(np.maximum(a * d - b * b, 0.0))
+    t = np.sqrt(a + d + 2.0 * s)
+    # √G = (G + sI)/t, so (√G)⁻¹ = t (G + sI)⁻¹ = t · adj(G + sI) / det(G + sI).
+    scale = t / ((a + s) * (d + s) - b * b)
+    inverse_root = np.column_stack([(d + s) * scale, -b * scale, (a + s) * scale])
+    return _symmetric_times_rows(inverse_root, m)
+
+
+def project_manifold(x: np.ndarray) -> np.ndarray:
+    """The nearest point of ``(St(2, r) × R^r)^n`` to ``x`` ``(n, 3, r)``."""
+    out = x.copy()
+    out[:, :2] = orthonormalise_rows(x[:, :2])
+    return out
+
+
+def retract(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Polar retraction ``R_x(v) = Proj(x + v)``."""
+    return project_manifold(x + v)
+
+
+def riemannian_gradient(x: np.ndarray, euclidean_gradient: np.ndarray) -> np.ndarray:
+    """``grad f(x)`` ``(n, 3, r)`` (embedded metric)."""
+    return project_tangent(x, euclidean_gradient)
+
+
+def riemannian_hessian(q: sp.spmatrix, x: np.ndarray, lam: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``Hess f(x)[v] = Proj_x(Q v − v_Y Λ)`` for ``f = ½⟨X, QX⟩ + ⟨X, G⟩`` (the linear term
+    enters only through ``Λ = multipliers(x, ∇f)``, ``(n, 3)``); ``v`` tangent ``(n, 3, r)``."""
+    out = apply_q(q, v)
+    out[:, :2] -= _symmetric_times_rows(lam, v[:, :2])
+    return project_tangent(x, out)
+
+
+def pose_gradient_norms(x: np.ndarray, q_x: np.ndarray) -> np.ndarray:
+    """``‖grad_i f‖²`` per pose, ``(N,)``, from ``X`` and ``QX``."""
+    return np.einsum("nkr,nkr->n", *(2 * [riemannian_gradient(x, q_x)]))
+
+
+# ----- lifting and rounding ---------------------------------------------------------------------
+
+
+def random_stiefel(rank: int, seed: int) -> np.ndarray:
+    """A seeded random ``(2, r)`` matrix with orthonormal rows (``Y_liftᵀ``, dpgo's
+    ``fixedStiefelVariable``)."""
+    gaussian = np.random.default_rng(seed).standard_normal((rank, 2))
+    q, _ = np.linalg.qr(gaussian)
+    return q.T
+
+
+def lift(poses: np.ndarray, lift_rows: np.ndarray) -> np.ndarray:
+    """Lift poses ``(N, 3)`` to ``X`` ``(N, 3, r)``: ``Y_i = L R_i``, ``p_i = L t_i`` with
+    ``L = lift_rowsᵀ`` ``(r, 2)``."""
+    rotations = se2.rotation(poses[:, 2])  # (N, 2, 2)
+    x = np.empty((poses.shape[0], 3, lift_rows.shape[1]))
+    x[:, :2] = np.swapaxes(rotations, 1, 2) @ lift_rows  # Y_iᵀ = R_iᵀ Lᵀ
+    x[:, 2] = poses[:, :2] @ lift_rows  # p_iᵀ = t_iᵀ Lᵀ
+    return x
+
+
+def round_solution(x: np.ndarray, anchor: int, anchor_pose: np.ndarray) -> np.ndarray:
+    """Round ``X`` ``(N, 3, r)`` to poses ``(N, 3)`` (dpgo ``getTrajectoryInGlobalFrame``, §2.8).
+
+    With the anchor's ``Y_a``: ``R_i ≈ Y_aᵀ Y_i`` projected onto SO(2) (the nearest rotation,
+    ``θ = atan2(M₁₀ − M₀₁, M₀₀ + M₁₁)``, which is the SVD projection with the determinant fix)
+    and ``t_i = Y_aᵀ (p_i − p_a)``; the result is expressed so that the anchor sits at
+    ``anchor_pose`` ``(3,)`` (the gauge).
+    """
+    anchor_rows = x[anchor, :2]  # Y_aᵀ (2, r)
+    m = anchor_rows @ np.swapaxes(x[:, :2], 1, 2)  # Y_aᵀ Y_i, (N, 2, 2)
+    headings = np.arctan2(m[:, 1, 0] - m[:, 0, 1], m[:, 0, 0] + m[:, 1, 1])
+    translations = (x[:, 2] - x[anchor, 2]) @ anchor_rows.T  # (N, 2)
+    relative = np.column_stack([translations, headings])
+    return se2.compose(anchor_pose[None, :], relative)
+
+
+def certificate_min_eigenvalue(q: sp.spmatrix, x: np.ndarray) -> float:
+    """``λ_min(S)`` with ``S = Q − SymBlockDiag(Λ)`` (REFERENCES §2.9): ``Λ_i`` on the rotation
+    rows of pose ``i``, zero on translations. ``λ_min ≥ −ε`` certifies that ``X`` is a global
+    minimiser of the relaxation (``SXᵀ = 0`` at critical points, so ``λ_min ≤ 0``)."""
+    lam = multipliers(x, apply_q(q, x))  # (N, 3)
+    n = x.shape[0]
+    lam_full = np.zeros((n, 3, 3))
+    lam_full[:, 0, 0], lam_full[:, 1, 1] = lam[:, 0], lam[:, 2]
+    lam_full[:, 0, 1] = lam_full[:, 1, 0] = lam[:, 1]
+    rows = 3 * np.arange(n)[:, None, None] + np.arange(3)[:, None]
+    cols = 3 * np.arange(n)[:, None, None] + np.arange(3)[None, :]
+    rows, cols = np.broadcast_arrays(rows, cols)
+    block_diag = sp.csr_matrix((lam_full.ravel(), (rows.ravel(), cols.ravel())), shape=q.shape)
+    certificate = (q - block_diag).tocsc()
+    value = eigsh(certificate, k=1, which="SA", tol=1e-8, maxiter=20 * q.shape[0])[0]
+    return float(value[0])
+
+
+# ----- robots, blocks and the local solver ----------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RobotBlock:
+    """Robot α's share of ``Q``.
+
+    Attributes:
+        poses: ``(n_α,)`` global ids of its poses (ascending).
+        hessian: ``Q_αα`` ``(3n_α, 3n_α)`` CSR.
+        preconditioner: LU factor of ``Q_αα + λI`` (symmetric-mode SuperLU, minimum degree on
+            ``Qᵀ + Q``).
+        reach_rows: ``(k,)`` rows of ``Q`` with a nonzero in robot α's columns (its own rows and
+            its neighbours' separator rows).
+        reach: ``Q[reach_rows, α's rows]`` ``(k, 3n_α)`` CSR: how a change of α's poses changes
+            ``QX``.
+        separators: number of its poses with an edge to another robot.
+    """
+
+    poses: np.ndarray
+    hessian: sp.csr_matrix
+    preconditioner: SuperLU
+    reach_rows: np.ndarray
+    reach: sp.csr_matrix
+    separators: int
+
+
+def pose_rows(poses: np.ndarray) -> np.ndarray:
+    """Rows of ``X.reshape(3N, r)`` of the given poses, ``(3n,)``."""
+    return (3 * poses[:, None] + np.arange(3)).ravel()
+
+
+def robot_blocks(q: sp.csr_matrix, graph: PoseGraph, robots: np.ndarray) -> list[RobotBlock]:
+    """One :class:`RobotBlock` per robot of the assignment ``robots`` ``(N,)``."""
+    crossing = robots[graph.tails] != robots[graph.heads]
+    is_separator = np.zeros(graph.num_poses, dtype=bool)
+    is_separator[graph.tails[crossing]] = True
+    is_separator[graph.heads[crossing]] = True
+    blocks = []
+    for robot in range(int(robots.max()) + 1):
+        poses = np.flatnonzero(robots == robot)
+        rows = pose_rows(poses)
+        columns = q[:, rows].tocsr()  # Q symmetric: α's columns
+        reach_rows = np.flatnonzero(np.diff(columns.indptr))
+        reach = columns[reach_rows]
+        hessian = q[rows][:, rows].tocsr()
+        shifted = (hessian + PRECONDITIONER_SHIFT * sp.identity(rows.size)).tocsc()
+        factor = splu(
+            shifted,
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        separators = int(np.count_nonzero(is_separator[poses]))
+        blocks.append(RobotBlock(poses, hessian, factor, reach_rows, reach, separators))
+    return blocks
+
+
+def colour_robots(graph: PoseGraph, robots: np.ndarray) -> list[np.ndarray]:
+    """Greedy (largest degree first) colouring of the robot adjacency graph.
+
+    Returns:
+        The colour classes, each an array of robot ids no two of which share an edge.
+    """
+    count = int(robots.max()) + 1
+    a, b = robots[graph.tails], robots[graph.heads]
+    crossing = a != b
+    adjacent = np.zeros((count, count), dtype=bool)
+    adjacent[a[crossing], b[crossing]] = True
+    adjacent |= adjacent.T
+    colours = np.full(count, -1)
+    for robot in np.argsort(-adjacent.sum(axis=1), kind="stable"):
+        taken = set(colours[adjacent[robot]].tolist())
+        colours[robot] = next(c for c in range(count) if c not in taken)
+    return [np.flatnonzero(colours == c) for c in range(colours.max() + 1)]
+
+
+@dataclasses.dataclass(frozen=True)
+class LocalOptions:
+    """Riemannian trust-region settings of one robot update (dpgo ``ROptParameters``).
+
+    Attributes:
+        rtr_iterations: trust-region iterations per update (dpgo 3).
+        tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
+        gradient_tolerance: stop the update when ``‖grad f_α‖ <`` this (dpgo 1e-2).
+    """
+
+    rtr_iterations: int = 3
+    tcg_iterations: int = 50
+    gradient_tolerance: float = 1e-2
+
+
+def _inner(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.vdot(a, b))
+
+
+def truncated_cg(
+    gradient: np.ndarray,
+    preconditioned_gradient: np.ndarray,
+    hessian: Callable[[np.ndarray], np.ndarray],
+    precondition: Callable[[np.ndarray], np.ndarray],
+    radius: float,
+    max_iterations: int,
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Preconditioned Steihaug–Toint truncated CG for ``min ⟨g,η⟩ + ½⟨η,Hη⟩``, ``‖η‖_P ≤ Δ``
+    (Absil, Mahony & Sepulchre 2008, Alg. 11; the trust region in the preconditioner's norm).
+
+    Args:
+        gradient: ``g``; preconditioned_gradient: ``P⁻¹g`` (projected), already computed.
+
+    Returns:
+        ``(η, Hη, hit_boundary)``.
+    """
+    eta = np.zeros_like(gradient)
+    h_eta = np.zeros_like(gradient)
+    residual = gradient.copy()
+    z = preconditioned_gradient
+    r_z = _inner(residual, z)
+    delta = -z
+    e_pe, e_pd, d_pd = 0.0, 0.0, r_z  # ‖η‖²_P, ⟨η,δ⟩_P, ‖δ‖²_P
+    initial_norm = np.sqrt(_inner(residual, residual))
+    stop_norm = initial_norm * min(initial_norm, 0.1)  # ‖r‖ ≤ ‖r₀‖ min(‖r₀‖^θ, κ), θ=1, κ=0.1
+    for _ in range(max_iterations):
+        h_delta = hessian(delta)
+        curvature = _inner(delta, h_delta)
+        alpha = r_z / curvature if curvature > 0 else np.inf
+        e_pe_next = e_pe + 2.0 * alpha * e_pd + alpha**2 * d_pd
+        if curvature <= 0 or e_pe_next >= radius**2:
+            tau = (-e_pd + np.sqrt(e_pd**2 + d_pd * (radius**2 - e_pe))) / d_pd
+            return eta + tau * delta, h_eta + tau * h_delta, True
+        e_pe = e_pe_next
+        eta = eta + alpha * delta
+        h_eta = h_eta + alpha * h_delta
+        residual = residual + alpha * h_delta
+        if np.sqrt(_inner(residual, residual)) <= stop_norm:
+            break
+        z = precondition(residual)
+        r_z_next = _inner(residual, z)
+        beta = r_z_next / r_z
+        r_z = r_z_next
+        delta = -z + beta * delta
+        e_pd = beta * (e_pd + alpha * d_pd)
+        d_pd = r_z + beta**2 * d_pd
+    return eta, h_eta, False
+
+
+def local_update(
+    block: RobotBlock, z: np.ndarray, linear: np.ndarray, options: LocalOptions
+) -> np.ndarray:
+    """Robot α's update: RTR on ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` from ``z`` ``(n_α, 3, r)``
+    with the linear term ``linear = G_α`` ``(n_α, 3, r)``; returns the new ``Z``."""
+
+    def cost_and_gradient(point: np.ndarray) -> tuple[float, np.ndarray]:
+        euclidean = apply_q(block.hessian, point) + linear
+        return _inner(point, 0.5 * (euclidean + linear)), euclidean
+
+    def precondition(v: np.ndarray) -> np.ndarray:
+        return project_tangent(z, block.preconditioner.solve(flat(v)).reshape(v.shape))
+
+    cost, euclidean = cost_and_gradient(z)
+    radius = np.inf
+    for _ in range(options.rtr_iterations):
+        gradient = riemannian_gradient(z, euclidean)
+        if np.sqrt(_inner(gradient, gradient)) < options.gradient_tolerance:
+            break
+        lam = multipliers(z, euclidean)
+
+        def hessian(v: np.ndarray, point=z, lam=lam) -> np.ndarray:
+            return riemannian_hessian(block.hessian, point, lam, v)
+
+        preconditioned = precondition(gradient)
+        if not np.isfinite(radius):  # first step: 10 × the P-norm of the preconditioned gradient
+            radius = 10.0 * np.sqrt(max(_inner(preconditioned, gradient), 0.0))
+        eta, h_eta, hit_boundary = truncated_cg(
+            gradient, preconditioned, hessian, precondition, radius, options.tcg_iterations
+        )
+        model_decrease = -(_inner(gradient, eta) + 0.5 * _inner(eta, h_eta))
+        candidate = retract(z, eta)
+        candidate_cost, candidate_euclidean = cost_and_gradient(candidate)
+        rho = (cost - candidate_cost) / model_decrease if model_decrease > 0 else -np.inf
+        if rho < 0.25:
+            radius /= 4.0
+        elif rho > 0.75 and hit_boundary:
+            radius *= 2.0
+        if rho > 1e-4 and candidate_cost < cost:
+            z, cost, euclidean = candidate, candidate_cost, candidate_euclidean
+    return z
+
+
+# ----- the block-coordinate iteration ----------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class RBCDOptions:
+    """How RBCD runs.
+
+    Attributes:
+        accelerated: Nesterov acceleration (RBCD++).
+        restart: ``"fixed"`` (every ``restart_interval`` iterations, dpgo / cc-pgo) or
+            ``"adaptive"`` (when the objective increases, ml-pgo).
+        restart_interval: period of the fixed restart.
+        selection: ``"greedy"`` (colour class with the largest gradient norm) or
+            ``"round-robin"``.
+        local: the robots' trust-region settings.
+    """
+
+    accelerated: bool = True
+    restart: str = "fixed"
+    restart_interval: int = RESTART_INTERVAL
+    selection: str = "greedy"
+    local: LocalOptions = LocalOptions()
+
+
+@dataclasses.dataclass(frozen=True)
+class RBCDRun:
+    """The outcome of :func:`run_rbcd`: final ``x`` ``(N, 3, r)``, ``history`` (``2f`` per
+    round, first entry the start), rounds run, simulated makespan [s], separator poses sent,
+    momentum restarts."""
+
+    x: np.ndarray
+    history: np.ndarray
+    iterations: int
+    parallel_s: float
+    messages: int
+    restarts: int
+
+
+class _Update(NamedTuple):
+    """One block round: the new ``X`` and ``QX``, the poses that moved, the slowest and summed
+    robot update times [s], and the separator poses the updated robots send."""
+
+    x: np.ndarray
+    q_x: np.ndarray
+    poses: np.ndarray
+    slowest_s: float
+    robots_s: float
+    separators: int
+
+
+class _Rounds:
+    """One block round: select a colour class at ``Y`` and update its robots in parallel."""
+
+    def __init__(
+        self,
+        blocks: list[RobotBlock],
+        classes: list[np.ndarray],
+        options: RBCDOptions,
+    ) -> None:
+        self.blocks, self.classes, self.options = blocks, classes, options
+        self.class_poses = [np.concatenate([blocks[r].poses for r in c]) for c in classes]
+        num_poses = sum(block.poses.size for block in blocks)
+        self.class_of_pose = np.empty(num_poses, dtype=np.int64)
+        for colour, poses in enumerate(self.class_poses):
+            self.class_of_pose[poses] = colour
+        self.class_separators = [sum(blocks[r].separators for r in c) for c in classes]
+
+    def select(self, y: np.ndarray, q_y: np.ndarray, iteration: int) -> int:
+        if self.options.selection == "round-robin":
+            return iteration % len(self.classes)
+        scores = np.bincount(
+            self.class_of_pose, pose_gradient_norms(y, q_y), minlength=len(self.classes)
+        )
+        return int(np.argmax(scores))
+
+    def update(self, y: np.ndarray, q_y: np.ndarray, iteration: int) -> _Update:
+        """The robots of the selected class minimise their local problems at ``Y`` (``QY``
+        given); the other robots keep ``Y``."""
+        colour = self.select(y, q_y, iteration)
+        x_new, q_x_new = y.copy(), q_y.copy()
+        q_x_flat = flat(q_x_new)
+        times = []
+        for robot in self.classes[colour]:
+            start = time.perf_counter()
+            block = self.blocks[robot]
+            z = y[block.poses]
+            linear = q_y[block.poses] - apply_q(block.hessian, z)  # G_α = Q_{α,β} Y_β
+            z_new = local_update(block, z, linear, self.options.local)
+            x_new[block.poses] = z_new
+            q_x_flat[block.reach_rows] += block.reach @ flat(z_new - z)
+            times.append(time.perf_counter() - start)
+        return _Update(
+            x_new,
+            q_x_new,
+            self.class_poses[colour],
+            max(times),
+            sum(times),
+            self.class_separators[colour],
+        )
+
+
+def run_rbcd(
+    q: sp.csr_matrix,
+    blocks: list[RobotBlock],
+    classes: list[np.ndarray],
+    x0: np.ndarray,
+    budget: Budget,
+    options: RBCDOptions,
+) -> RBCDRun:
+    """RBCD / RBCD++ from ``x0`` ``(N, 3, r)`` for ``budget.iterations`` rounds (or until
+    ``budget.seconds``); see the module docstring for the round, restarts and accounting."""
+    start = time.perf_counter()
+    rounds = _Rounds(blocks, classes, options)
+    num_blocks, num_robots = len(classes), len(blocks)
+    all_separators = sum(block.separators for block in blocks)
+    x, q_x = x0, apply_q(q, x0)
+    cost = relaxed_cost(x, q_x)
+    v, gamma = x, 0.0
+    history = [2.0 * cost]
+    parallel_s, messages, restarts, iteration = 0.0, 0, 0, 0
+    while iteration < budget.iterations:
+        if budget.seconds is not None and time.perf_counter() - start > budget.seconds:
+            break
+        iteration += 1
+        round_start = time.perf_counter()
+        fixed_restart = options.restart == "fixed" and iteration % options.restart_interval == 0
+        plain = not options.accelerated or fixed_restart
+        if plain:
+            update = rounds.update(x, q_x, iteration)
+            messages += update.separators
+        else:  # RBCD++ (§2.4)
+            gamma = (1.0 + np.sqrt(1.0 + 4.0 * num_blocks**2 * gamma**2)) / (2.0 * num_blocks)
+            alpha = 1.0 / (gamma * num_blocks)
+            y = project_manifold((1.0 - alpha) * x + alpha * v)
+            update = rounds.update(y, apply_q(q, y), iteration)
+            moved = update.poses  # elsewhere X_new = Y, so V (on the manifold) keeps its value
+            v = v.copy()
+            v[moved] = project_manifold(v[moved] + gamma * (update.x[moved] - y[moved]))
+            messages += all_separators
+        slowest_s, robots_s = update.slowest_s, update.robots_s
+        cost_new = relaxed_cost(update.x, update.q_x)
+        restart = options.accelerated and plain
+        if options.accelerated and not plain and options.restart == "adaptive" and cost_new > cost:
+            update = rounds.update(x, q_x, iteration)  # redo the round without momentum
+            slowest_s, robots_s = slowest_s + update.slowest_s, robots_s + update.robots_s
+            messages += update.separators
+            cost_new = relaxed_cost(update.x, update.q_x)
+            restart = True
+        if restart:
+            v, gamma = update.x, 0.0
+            restarts += 1
+        x, q_x, cost = update.x, update.q_x, cost_new
+        history.append(2.0 * cost)
+        shared_s = time.perf_counter() - round_start - robots_s
+        parallel_s += slowest_s + shared_s / num_robots
+    return RBCDRun(x, np.asarray(history), iteration, parallel_s, messages, restarts)
+
+
+# ----- the method: initialise, iterate, round, report --------------------------------------------
+
+INITIALISATIONS = ("chordal", "odometry", "problem")
+
+
+def initial_poses(graph: PoseGraph, init: str) -> np.ndarray:
+    """The starting estimate ``(N, 3)``: ``"chordal"`` (centralised chordal initialisation, as
+    dpgo's example), ``"odometry"`` (odometry composition) or ``"problem"`` (``graph.poses``)."""
+    if init == "chordal":
+        from popbench.solvers.chordal import chordal_initialisation
+
+        return chordal_initialisation(graph)
+    if init == "odometry":
+        return graph.odometry_initial()
+    if init == "problem":
+        return graph.poses
+    raise ValueRangeError("init", init, " or ".join(INITIALISATIONS))
+
+
+def solve_rbcd(
+    graph: PoseGraph,
+    robots: np.ndarray,
+    budget: Budget,
+    options: RBCDOptions,
+    init: str = "chordal",
+    rank: int = 5,
+    certify: bool = False,
+    seed: int = 0,
+) -> Result:
+    """Run RBCD on ``graph`` split by ``robots`` ``(N,)`` and round the result.
+
+    Args:
+        graph: the global pose graph; ``graph.poses[0]`` fixes the gauge of the output.
+        robots: ``(N,)`` vertex → robot assignment (the blocks).
+        budget: rounds (one colour class each) and an optional wall-clock cap.
+        options: acceleration, restart and local-solver settings.
+        init: see :func:`initial_poses`.
+        rank: ``r ≥ 2`` of the relaxation (dpgo 5).
+        certify: also compute ``λ_min`` of the certificate (``extras["certificate_min_eig"]``).
+        seed: seeds the random lifting matrix ``St(2, r)``.
+
+    Returns:
+        The :class:`~popbench.methods.Result`; ``history`` holds the relaxation's ``2f``
+        (F_chordal of the rank-r iterate) per round, ``F``/``F_chordal``/``chi2`` are those of
+        the rounded poses. ``parallel_s`` includes the initialisation (centralised) and
+        ``1/n`` of the setup (Q, blocks, factorisations, which each robot does for itself).
+    """
+    if rank < 2:
+        raise ValueRangeError("rank", rank, "an integer ≥ 2")
+    start = time.perf_counter()
+    x0 = lift(initial_poses(graph, init), random_stiefel(rank, seed))
+    initialised = time.perf_counter()
+    q = connection_laplacian(graph)
+    blocks = robot_blocks(q, graph, robots)
+    classes = colour_robots(graph, robots)
+    setup_s = time.perf_counter() - initialised
+    run = run_rbcd(q, blocks, classes, x0, budget, options)
+    anchor = 0  # vertex 0 (owned by robot 0) keeps its estimate: the gauge
+    poses = round_solution(run.x, anchor, graph.poses[anchor])
+    costs = objective.evaluate(graph, poses)
+    wall_s = time.perf_counter() - start
+    extras = {
+        "rank": rank,
+        "init": init,
+        "colours": len(classes),
+        "restarts": run.restarts,
+        "relaxed_F_chordal": float(run.history[-1]),
+        "gradient_norm": float(np.sqrt(pose_gradient_norms(run.x, apply_q(q, run.x)).sum())),
+        "history": "relaxed F_chordal (2f of the rank-r iterate) per round",
+        "iteration": "one colour class of non-adjacent robots updates in parallel",
+    }
+    if certify:
+        extras["certificate_min_eig"] = certificate_min_eigenvalue(q, run.x)
+    return Result(
+        poses=poses,
+        F=costs.F,
+        F_chordal=costs.F_chordal,
+        chi2=costs.chi2,
+        wall_s=wall_s,
+        parallel_s=(initialised - start) + setup_s / len(blocks) + run.parallel_s,
+        iterations=run.iterations,
+        history=run.history,
+        messages=run.messages,
+        extras=extras,
+    )
