@@ -176,16 +176,14 @@ def parse_method_options(pairs: list[str]) -> dict[str, Any]:
     return options
 
 
-def build_problem(source: str, robots: int, init: str, partition: str, seed: int):
+def build_problem(source: str, robots: int, partition: str, seed: int):
     """``source`` (a registered name or a file) split among ``robots`` robots, its poses the
-    ``init`` estimate — the same problem the experiment harness builds."""
+    odometry composition (the harness's problem for ``init="odometry"``)."""
     from popbench.harness.problems import distributed_problem
 
-    if init not in INITS:
-        raise ValueRangeError("--init", init, " or ".join(INITS))
     if partition not in PARTITIONS:
         raise ValueRangeError("--partition", partition, " or ".join(PARTITIONS))
-    return distributed_problem(source, robots, init, partition, seed)
+    return distributed_problem(source, robots, "odometry", partition, seed)
 
 
 def run_method(problem, method: str, budget, options: dict[str, Any]):
@@ -228,13 +226,17 @@ def solve_record(
     """Solve one problem and summarise it as a JSON-ready dict (what ``popbench solve --json``
     prints).
 
-    As in the experiment harness, the ``init`` estimate is computed here and stored in the
-    problem (``graph.poses``), and the method runs with ``init="problem"``, so every method starts
-    from the same poses; ``F_init`` is ``F`` there.
+    The problem holds the odometry composition; the method is called with ``init=init``
+    (``"odometry"`` or ``"chordal"``, which every registered method accepts) and builds its own
+    starting point. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since methods
+    differ in what their ``history`` records.
     """
     from popbench import objective
+    from popbench.harness.problems import initial_poses
     from popbench.methods import Budget
 
+    if init not in INITS:
+        raise ValueRangeError("--init", init, " or ".join(INITS))
     if iterations is not None and iterations < 0:
         raise ValueRangeError("--iterations", iterations, "an integer ≥ 0")
     if seconds is not None and not seconds > 0:
@@ -242,8 +244,8 @@ def solve_record(
     budget = Budget() if iterations is None else Budget(iterations=iterations)
     if seconds is not None:
         budget = Budget(iterations=budget.iterations, seconds=seconds)
-    problem = build_problem(source, robots, init, partition, seed)
-    options = {"init": "problem", **(options or {})}
+    problem = build_problem(source, robots, partition, seed)
+    options = {"init": init, **(options or {})}
     result = run_method(problem, method, budget, options)
     graph = problem.graph
     record: dict[str, Any] = {
@@ -254,7 +256,7 @@ def solve_record(
         "partition": partition if problem.num_robots > 1 else None,
         "poses": graph.num_poses,
         "edges": graph.num_edges,
-        "F_init": objective.objective(graph),
+        "F_init": objective.objective(graph, initial_poses(source, init)),
         "F": float(result.F),
         "F_chordal": float(result.F_chordal),
         "chi2": float(result.chi2),

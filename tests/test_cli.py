@@ -189,3 +189,21 @@ def test_datasets_list_shows_every_name(capsys: pytest.CaptureFixture) -> None:
     assert cli.main(["datasets", "list"]) == 0
     out = capsys.readouterr().out
     assert all(name in out for name in datasets.DATASETS)
+
+
+@pytest.mark.dataset
+def test_solve_json_record_with_a_distributed_method(capsys: pytest.CaptureFixture) -> None:
+    pytest.importorskip("baselines.mm_pgo")
+    require_dataset("mit")
+    args = ["solve", "mit", "--method", "mm-pgo", "--robots", "3", "--iterations", "5", "--json"]
+    assert cli.main([*args, "--init", "chordal"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert REQUIRED_KEYS <= set(record)
+    assert (record["robots"], record["partition"], record["iterations"]) == (3, "metis", 5)
+    assert record["history_length"] == 6 and record["parallel_s"] <= record["wall_s"]
+    # F_init is F (eq. 1) at the chordal estimate, whatever the method's history records.
+    from popbench.objective import objective
+    from popbench.solvers.chordal import chordal_initialisation
+
+    graph = datasets.load("mit")
+    assert record["F_init"] == pytest.approx(objective(graph, chordal_initialisation(graph)))
