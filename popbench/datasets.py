@@ -316,9 +316,9 @@ def _missing_message(dataset: Dataset, reason: str = "") -> str:
     )
 
 
-def _open_url(url: str):  # noqa: ANN202 - the urllib response object
+def _open_url(url: str):  # -> the urllib response (a context manager)
     """Open ``url`` for reading (a seam for tests that simulate being offline)."""
-    return urllib.request.urlopen(url, timeout=_DOWNLOAD_TIMEOUT_S)  # noqa: S310 - pinned https
+    return urllib.request.urlopen(url, timeout=_DOWNLOAD_TIMEOUT_S)
 
 
 def _download(dataset: Dataset, target: Path) -> Path:
