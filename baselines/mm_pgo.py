@@ -65,9 +65,9 @@ current iterate before the first iteration and every ``weight_interval`` (20) it
 (static between updates: the weighted quadratic is minimised by MM; at an update each robot
 refactorises ``H_α`` and ``L_α`` and the acceleration state is reset, since the surrogated
 objective changed). ``inlier_mask``: an edge of a robust kind is an inlier when its weight at
-the final estimate exceeds the weight at ``s = c`` (:func:`robust.flag_threshold`); odometry is
-always an inlier; None for the kernel ``none``. When ``problem.outlier_mask`` is given,
-``extras`` has ``precision``/``recall`` of the flagged edges.
+the final estimate is at least the weight at ``s = c`` (:func:`robust.flag_threshold`), i.e.
+when its final ``s ≤ c``; odometry is always an inlier; None for the kernel ``none``. When
+``problem.outlier_mask`` is given, ``extras`` has ``precision``/``recall`` of the flagged edges.
 
 **Accounting.** One *iteration* = every robot updates once (in parallel). ``wall_s`` = the whole
 run in this process (set-up, initialisation, logging). ``parallel_s`` = set-up (the slowest
@@ -676,7 +676,7 @@ def solve(
     inlier_mask = None
     if kernel != "none":
         final_weights = edge_weights(graph, poses, kernel, kernel_scale)
-        inlier_mask = final_weights > robust.flag_threshold(kernel, kernel_scale)
+        inlier_mask = final_weights >= robust.flag_threshold(kernel, kernel_scale)
         extras["weights"] = final_weights
         if problem.outlier_mask is not None:
             extras["precision"], extras["recall"] = precision_recall(

@@ -26,9 +26,9 @@ translation term ``τ‖r_t‖²`` is ≈ χ²₂ (exactly for isotropic ``Λ_tt
 quantile is the natural yardstick. :data:`DEFAULT_SCALE` = χ²₃ 0.99-quantile = 11.345: edges
 below it keep weight ≥ 1/4 (GM) / e⁻¹ (Welsch) / 1 (Huber).
 
-**Flagging outliers.** An edge is an inlier when its final weight exceeds the weight at
-``s = c`` (:func:`flag_threshold`), i.e. when its final ``s`` is below the scale ``c``; the
-kernel ``none`` flags nothing.
+**Flagging outliers.** An edge is an inlier when its final weight is at least the weight at
+``s = c`` (:func:`flag_threshold`), i.e. when its final ``s ≤ c`` (every weight is
+non-increasing in ``s``; Huber's is 1 up to ``c``); the kernel ``none`` flags nothing.
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def loss(kernel: str, s: np.ndarray, scale: float) -> np.ndarray:
 
 
 def flag_threshold(kernel: str, scale: float) -> float:
-    """The weight at ``s = c``: an edge whose final weight is at or below it is an outlier
+    """The weight at ``s = c``: an edge whose final weight is below it is an outlier
     (0 for the kernel ``none``, which flags nothing)."""
     if check_kernel(kernel) == "none":
         return 0.0
