@@ -1,0 +1,109 @@
+"""MM-PGO benchmark: convergence to the published optima, timing against GTSAM LM, odometry
+starts and outlier detection (issue 3).
+
+    POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_mm_pgo.py
+    (options: --datasets intel,mit --robots 3,7 --iterations 1000 --skip-odometry ...)
+
+Prints one table row per run: dataset, robots n, init, F_chordal after the iterations, relative
+gap to the published SE-Sync-convention optimum (REFERENCES §6.2), the first iteration within
+1e-3, iterations, wall_s, parallel_s. Then the 1000-iteration wall time at n = 7 divided by GTSAM
+Levenberg–Marquardt's time on the same graph (measured in the same run; GTSAM from the file's
+odometry initial estimate, a gauge prior on pose 0, default parameters), and precision / recall
+of the outliers flagged on intel with 10 % injected outliers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from baselines import mm_pgo
+from popbench import datasets
+from popbench.distributed import DistributedProblem
+from popbench.methods import Budget, Result
+from popbench.outliers import with_outliers
+
+OPTIMA = {  # F_chordal* (SE-Sync convention), REFERENCES §6.2
+    "intel": 393.6525,
+    "mit": 61.1541,
+    "csail": 31.7037,
+    "m3500": 193.8623,
+    "city10k": 638.6246,
+}
+
+
+def gtsam_seconds(name: str) -> float:
+    """Seconds GTSAM LM takes on dataset ``name`` (file initial estimate, prior on pose 0)."""
+    import gtsam
+
+    graph, initial = gtsam.readG2o(str(datasets.dataset_path(name)), False)
+    graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+    tic = time.perf_counter()
+    gtsam.LevenbergMarquardtOptimizer(graph, initial, gtsam.LevenbergMarquardtParams()).optimize()
+    return time.perf_counter() - tic
+
+
+def run(name: str, robots: int, init: str, iterations: int) -> Result:
+    problem = DistributedProblem.from_graph(datasets.load(name), robots)
+    result = mm_pgo.solve(problem, Budget(iterations=iterations), init=init)
+    gaps = result.history / OPTIMA[name] - 1.0
+    within = np.flatnonzero(gaps < 1e-3)
+    first = str(within[0]) if within.size else "-"
+    print(
+        f"| {name:8s} | {robots:3d} | {init:8s} | {result.F_chordal:11.4f} | {gaps[-1]:9.2e} | "
+        f"{first:>6s} | {result.iterations:5d} | {result.wall_s:7.2f} | {result.parallel_s:7.2f} |",
+        flush=True,
+    )
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--datasets", default="intel,mit,csail,m3500,city10k")
+    parser.add_argument("--robots", default="3,7,35")
+    parser.add_argument("--iterations", type=int, default=1000)
+    parser.add_argument("--skip-odometry", action="store_true")
+    parser.add_argument("--skip-gtsam", action="store_true")
+    parser.add_argument("--skip-outliers", action="store_true")
+    args = parser.parse_args()
+    names = args.datasets.split(",")
+    robot_counts = [int(n) for n in args.robots.split(",")]
+
+    print("| dataset | n | init | F_chordal | rel gap | first<1e-3 | its | wall_s | parallel_s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    walls = {}
+    for name in names:
+        for robots in robot_counts:
+            walls[name, robots] = run(name, robots, "chordal", args.iterations).wall_s
+    if not args.skip_odometry:
+        for name in names:
+            run(name, 7, "odometry", args.iterations)
+
+    if not args.skip_gtsam:
+        print("\n| dataset | mm-pgo wall_s (n=7) | GTSAM LM s | ratio |")
+        print("|---|---|---|---|")
+        for name in ("m3500", "city10k"):
+            if (name, 7) in walls:
+                reference = gtsam_seconds(name)
+                ratio = walls[name, 7] / reference
+                print(f"| {name} | {walls[name, 7]:.2f} | {reference:.2f} | {ratio:.1f} |")
+
+    if not args.skip_outliers:
+        print("\n| dataset | n | kernel | outliers | precision | recall | F_chordal |")
+        print("|---|---|---|---|---|---|---|")
+        base = DistributedProblem.from_graph(datasets.load("intel"), 7)
+        problem = with_outliers(base, 0.10, seed=0)
+        for kernel in ("gm", "welsch", "huber"):
+            result = mm_pgo.solve(problem, Budget(iterations=args.iterations), kernel=kernel)
+            print(
+                f"| intel | 7 | {kernel} | {int(problem.outlier_mask.sum())} | "
+                f"{result.extras['precision']:.3f} | {result.extras['recall']:.3f} | "
+                f"{result.F_chordal:.2f} |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
