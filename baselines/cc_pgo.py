@@ -25,7 +25,8 @@ def solve(
     seed: int = 0,
     selection: str = "greedy",
     accelerated: bool = True,
-    rtr_iterations: int = 3,
+    rtr_iterations: int = 1,
+    tcg_iterations: int = 10,
     **_: object,
 ) -> Result:
     """Solve ``problem`` with CC-PGO.
@@ -39,7 +40,8 @@ def solve(
         seed: seeds the lifting matrix.
         selection: ``"greedy"`` or ``"round-robin"`` colour-class selection.
         accelerated: RBCD++ (default) or plain RBCD.
-        rtr_iterations: trust-region iterations per robot update (dpgo 3).
+        rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
+        tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
     """
     graph = problem.graph
     robots = np.zeros(graph.num_poses, np.int64) if graph.robots is None else graph.robots
@@ -47,6 +49,6 @@ def solve(
         accelerated=accelerated,
         restart="fixed",
         selection=selection,
-        local=LocalOptions(rtr_iterations=rtr_iterations),
+        local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
     )
     return solve_rbcd(graph, robots, budget or Budget(), options, init, rank, certify, seed)

@@ -32,7 +32,8 @@ def solve(
     seed: int = 0,
     repartition: bool = True,
     selection: str = "greedy",
-    rtr_iterations: int = 3,
+    rtr_iterations: int = 1,
+    tcg_iterations: int = 10,
     **_: object,
 ) -> Result:
     """Solve ``problem`` with ML-PGO.
@@ -46,7 +47,8 @@ def solve(
         seed: seeds the METIS partition and the lifting matrix.
         repartition: split with METIS (default) or keep ``problem.graph.robots``.
         selection: ``"greedy"`` or ``"round-robin"`` colour-class selection.
-        rtr_iterations: trust-region iterations per robot update.
+        rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
+        tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
     """
     graph = problem.graph
     if repartition or graph.robots is None:
@@ -57,6 +59,6 @@ def solve(
         accelerated=True,
         restart="adaptive",
         selection=selection,
-        local=LocalOptions(rtr_iterations=rtr_iterations),
+        local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
     )
     return solve_rbcd(graph, robots, budget or Budget(), options, init, rank, certify, seed)

@@ -63,6 +63,7 @@ from popbench.methods import Budget, Result
 
 PRECONDITIONER_SHIFT = 0.1  # λ in Q_αα + λI (dpgo)
 RESTART_INTERVAL = 30  # fixed restart period of RBCD++ (dpgo restartInterval)
+MAX_REJECTIONS = 10  # trust-region rejections allowed in one robot update (dpgo)
 
 
 # ----- the data matrix and the cost ------------------------------------------------------------
@@ -328,14 +329,18 @@ def colour_robots(graph: PoseGraph, robots: np.ndarray) -> list[np.ndarray]:
 class LocalOptions:
     """Riemannian trust-region settings of one robot update (dpgo ``ROptParameters``).
 
+    The defaults (1 accepted step, ≤ 10 tCG iterations) are cheaper than dpgo's (3, 50) and, on
+    m3500 with 7 robots, reached 1e-3 of the optimum in as many rounds (58 vs 55 with adaptive
+    restart, 115 vs 112 with the fixed one) in ~60 % of the time (benchmarks/bench_rbcd.py).
+
     Attributes:
-        rtr_iterations: trust-region iterations per update (dpgo 3).
+        rtr_iterations: accepted trust-region steps per update (dpgo 3).
         tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
         gradient_tolerance: stop the update when ``‖grad f_α‖ <`` this (dpgo 1e-2).
     """
 
-    rtr_iterations: int = 3
-    tcg_iterations: int = 50
+    rtr_iterations: int = 1
+    tcg_iterations: int = 10
     gradient_tolerance: float = 1e-2
 
 
@@ -397,31 +402,42 @@ def local_update(
     block: RobotBlock, z: np.ndarray, linear: np.ndarray, options: LocalOptions
 ) -> np.ndarray:
     """Robot α's update: RTR on ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` from ``z`` ``(n_α, 3, r)``
-    with the linear term ``linear = G_α`` ``(n_α, 3, r)``; returns the new ``Z``."""
+    with the linear term ``linear = G_α`` ``(n_α, 3, r)``; returns the new ``Z``.
+
+    Runs until ``options.rtr_iterations`` steps were accepted, the gradient norm falls below
+    ``options.gradient_tolerance``, or ``MAX_REJECTIONS`` steps were rejected (each rejection
+    shrinks the radius ×¼, as dpgo does). The first radius is 10 × the P-norm of the
+    preconditioned gradient.
+    """
 
     def cost_and_gradient(point: np.ndarray) -> tuple[float, np.ndarray]:
         euclidean = apply_q(block.hessian, point) + linear
         return _inner(point, 0.5 * (euclidean + linear)), euclidean
 
-    def precondition(v: np.ndarray) -> np.ndarray:
-        return project_tangent(z, block.preconditioner.solve(flat(v)).reshape(v.shape))
+    def precondition(point: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return project_tangent(point, block.preconditioner.solve(flat(v)).reshape(v.shape))
 
     cost, euclidean = cost_and_gradient(z)
     radius = np.inf
-    for _ in range(options.rtr_iterations):
-        gradient = riemannian_gradient(z, euclidean)
-        if np.sqrt(_inner(gradient, gradient)) < options.gradient_tolerance:
-            break
-        lam = multipliers(z, euclidean)
-
-        def hessian(v: np.ndarray, point=z, lam=lam) -> np.ndarray:
-            return riemannian_hessian(block.hessian, point, lam, v)
-
-        preconditioned = precondition(gradient)
-        if not np.isfinite(radius):  # first step: 10 × the P-norm of the preconditioned gradient
-            radius = 10.0 * np.sqrt(max(_inner(preconditioned, gradient), 0.0))
+    accepted = rejected = 0
+    moved = True
+    while accepted < options.rtr_iterations and rejected < MAX_REJECTIONS:
+        if moved:  # the gradient, its preconditioned version and Λ at the new point
+            gradient = riemannian_gradient(z, euclidean)
+            if np.sqrt(_inner(gradient, gradient)) < options.gradient_tolerance:
+                break
+            preconditioned = precondition(z, gradient)
+            if not np.isfinite(radius):
+                radius = 10.0 * np.sqrt(max(_inner(preconditioned, gradient), 0.0))
+            lam = multipliers(z, euclidean)
+            point = z
         eta, h_eta, hit_boundary = truncated_cg(
-            gradient, preconditioned, hessian, precondition, radius, options.tcg_iterations
+            gradient,
+            preconditioned,
+            lambda v, point=point, lam=lam: riemannian_hessian(block.hessian, point, lam, v),
+            lambda v, point=point: precondition(point, v),
+            radius,
+            options.tcg_iterations,
         )
         model_decrease = -(_inner(gradient, eta) + 0.5 * _inner(eta, h_eta))
         candidate = retract(z, eta)
@@ -431,8 +447,12 @@ def local_update(
             radius /= 4.0
         elif rho > 0.75 and hit_boundary:
             radius *= 2.0
-        if rho > 1e-4 and candidate_cost < cost:
+        moved = rho > 1e-4 and candidate_cost < cost
+        if moved:
             z, cost, euclidean = candidate, candidate_cost, candidate_euclidean
+            accepted += 1
+        else:
+            rejected += 1
     return z
 
 

@@ -78,9 +78,10 @@ def test_colour_classes_are_independent_sets_covering_every_robot(small_graph):
 def test_small_graph_converges_certifiably_with_consistent_accounting(small_graph, solve):
     problem = DistributedProblem.from_graph(small_graph, 3)
     result = solve(problem, Budget(iterations=150), certify=True)
-    # λ_min(S) ≈ 0 (to the accuracy of an iterate with ‖grad‖ ≈ 1e-3, against ‖Q‖ ≈ 10²):
-    # the rank-5 iterate is a global minimiser of the relaxation ...
-    assert result.extras["gradient_norm"] < 1e-2
+    # λ_min(S) ≈ 0 (to the accuracy of an iterate whose robots stop at a local gradient norm of
+    # 1e-2, as dpgo's do, against ‖Q‖ ≈ 10²): the rank-5 iterate is a global minimiser of the
+    # relaxation ...
+    assert result.extras["gradient_norm"] < 0.05  # dpgo's global stopping threshold is 0.1
     assert result.extras["certificate_min_eig"] > -1e-4
     # ... and the relaxation is tight: rounding loses nothing
     assert result.F_chordal == pytest.approx(result.extras["relaxed_F_chordal"], rel=1e-8)
