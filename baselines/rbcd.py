@@ -25,9 +25,11 @@ greedy RBCD; with more, it is the parallel (Jacobi over an independent set) coun
 MM-PGO where every robot updates each iteration.
 
 **Local update** (dpgo ``PGOAgent::updateX``): with neighbours fixed, robot α minimises
-``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` over ``(St(2, r) × R^r)^{n_α}`` by a few Riemannian
-trust-region Newton iterations with truncated (Steihaug–Toint) CG, preconditioned by a cached
-sparse LU factor of ``Q_αα + λI`` (dpgo's preconditioner).
+``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` over ``(St(2, r) × R^r)^{n_α}`` by Riemannian
+trust-region Newton steps with truncated (Steihaug–Toint) CG, preconditioned by a cached sparse
+LU factor of ``Q_αα + λI`` (dpgo's preconditioner); by default one accepted step with ≤ 10 tCG
+iterations (dpgo: 3 steps, ≤ 50; see :class:`LocalOptions`). The linear term ``G_α`` only needs
+the neighbours' separator poses.
 
 **Acceleration** (RBCD++, REFERENCES §2.4), with ``B`` blocks (colour classes):
 ``γ ← (1 + √(1 + 4B²γ²)) / (2B)``, ``α ← 1/(γB)``, ``Y ← Proj((1−α)X + αV)``, the selected block
@@ -679,6 +681,7 @@ def solve_rbcd(
         "rank": rank,
         "init": init,
         "colours": len(classes),
+        "cut_edges": int(np.count_nonzero(robots[graph.tails] != robots[graph.heads])),
         "restarts": run.restarts,
         "relaxed_F_chordal": float(run.history[-1]),
         "gradient_norm": float(np.sqrt(pose_gradient_norms(run.x, apply_q(q, run.x)).sum())),

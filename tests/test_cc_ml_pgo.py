@@ -12,6 +12,7 @@ from baselines import cc_pgo, ml_pgo, rbcd
 from popbench import objective, se2
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, get_method
+from popbench.partition import partition, partition_report
 
 MIT_OPTIMUM = 61.1541  # F_chordal*, SE-Sync convention (REFERENCES §6.2)
 
@@ -106,6 +107,16 @@ def test_same_seed_same_result_and_unknown_options_fail(small_graph):
         cc_pgo.solve(problem, Budget(iterations=1), init="magic")
     with pytest.raises(ValueRangeError):
         cc_pgo.solve(problem, Budget(iterations=1), rank=1)
+
+
+def test_ml_pgo_repartitions_with_metis_and_cc_pgo_keeps_the_assignment(small_graph):
+    problem = DistributedProblem.from_graph(small_graph, 3, partition="contiguous")
+    metis = partition_report(small_graph, partition(small_graph, 3, "metis")).cut_edges
+    contiguous = partition_report(small_graph, problem.robots).cut_edges
+    budget = Budget(iterations=2)
+    assert ml_pgo.solve(problem, budget).extras["cut_edges"] == metis
+    assert ml_pgo.solve(problem, budget, repartition=False).extras["cut_edges"] == contiguous
+    assert cc_pgo.solve(problem, budget).extras["cut_edges"] == contiguous
 
 
 def test_registry_resolves_both_methods():
