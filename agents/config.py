@@ -103,6 +103,7 @@ class ExperimentConfig:
     Attributes:
         noise: training environment "V1", "V2" or "V3" (paper §IV-A; the main table uses V2).
         robots: team size n (the critic is built for this n).
+        poses_per_robot: synthetic poses per robot (paper 60).
         num_envs: environments batched in one TorchRL env.
         seed: seeds the environment, torch and the replay sampler.
         frames: total environment frames (one frame = one batched env step of one env).
@@ -117,6 +118,7 @@ class ExperimentConfig:
 
     noise: str = "V2"
     robots: int = 7
+    poses_per_robot: int = 60
     num_envs: int = 32
     seed: int = 0
     frames: int = 1_000_000

@@ -382,3 +382,55 @@ def test_temperatures_move_toward_their_targets(transitions, overrides, edge_sig
         optimiser.step()
     assert edge_sign * (loss.log_alpha_edge.item() - start[0]) > 0.1
     assert delta_sign * (loss.log_alpha_delta.item() - start[1]) > 0.1
+
+
+# ----- trainer / checkpoints --------------------------------------------------------------------
+
+
+def test_tiny_training_run_checkpoints_and_resumes(tmp_path) -> None:
+    import csv
+
+    from agents.checkpoint import CheckpointError, load_actor, read_checkpoint
+    from agents.config import ExperimentConfig
+    from agents.trainer import train
+
+    def config(frames: int) -> TrainConfig:
+        return TrainConfig(
+            model=SMALL,
+            algorithm=AlgorithmConfig(warmup_frames=32, batch_size=8, buffer_size=256),
+            experiment=ExperimentConfig(
+                robots=3,
+                poses_per_robot=10,
+                num_envs=4,
+                frames=frames,
+                frames_per_batch=32,
+                checkpoint_interval=32,
+                eval_interval=64,
+                eval_problems=2,
+                out_dir=str(tmp_path),
+                progress=False,
+            ),
+        )
+
+    train(config(64), resume=False)
+    first = read_checkpoint(tmp_path / "checkpoint.pt")
+    assert (first["frames"], first["updates"]) == (64, 2)
+    train(config(96), resume=True)
+    second = read_checkpoint(tmp_path / "checkpoint.pt")
+    assert (second["frames"], second["updates"]) == (96, 3)
+    with (tmp_path / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["frames"]) for r in rows] == [32, 64, 96]
+    assert [int(r["updates"]) for r in rows] == [1, 2, 3]
+    assert math.isfinite(float(rows[1]["eval_f_reduction"]))
+    assert math.isfinite(float(rows[2]["loss_qvalue"]))
+    assert (tmp_path / "learning_curve.png").stat().st_size > 0
+
+    actor, loaded = load_actor(tmp_path / "checkpoint.pt")
+    assert loaded.model.hidden == SMALL.hidden and not actor.training
+    torch.testing.assert_close(
+        actor.state_dict()["edge_head.0.weight"], second["actor"]["edge_head.0.weight"]
+    )
+    (tmp_path / "broken.pt").write_text("not a checkpoint")
+    with pytest.raises(CheckpointError, match="broken.pt"):
+        load_actor(tmp_path / "broken.pt")

@@ -1,0 +1,64 @@
+"""GA-SAC checkpoints: one `.pt` file holding the config, the networks, the optimisers and progress.
+
+Layout (a plain dict, loaded with `torch.load(weights_only=True)`):
+    "format": CHECKPOINT_FORMAT, "config": TrainConfig.to_dict(),
+    "dims": {"node", "edge", "agents", "choices"},
+    "actor": actor state_dict, "loss": GASACLoss state_dict (actor, critic, target critic,
+    temperatures), "optimisers": {name: state_dict}, "frames": int, "updates": int.
+The replay buffer is not stored: a resumed run refills it (updates restart once it holds one
+minibatch). `load_actor` needs only "config", "dims" and "actor" — what prop-v1 uses at inference.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from agents.actor import HybridActor
+from agents.config import TrainConfig
+from popbench.errors import PopbenchError
+
+CHECKPOINT_FORMAT = 1
+
+
+class CheckpointError(PopbenchError):
+    """A checkpoint file is missing, unreadable or of another format."""
+
+
+def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
+    """Write `state` (see module docstring) atomically: to a temporary file, then renamed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    torch.save({"format": CHECKPOINT_FORMAT, **state}, temporary)
+    os.replace(temporary, path)
+    return path
+
+
+def read_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict[str, Any]:
+    """The checkpoint dict; a one-line `CheckpointError` if it cannot be used."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: checkpoint not found")
+    try:
+        state = torch.load(path, map_location=device, weights_only=True)
+    except Exception as error:  # torch raises several types for corrupt/foreign files
+        raise CheckpointError(f"{path}: not a readable checkpoint ({error})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: not a GA-SAC checkpoint of format {CHECKPOINT_FORMAT}")
+    return state
+
+
+def load_actor(
+    path: str | Path, device: str | torch.device = "cpu"
+) -> tuple[HybridActor, TrainConfig]:
+    """The trained shared actor (eval mode) and its config, for any team size."""
+    state = read_checkpoint(path, device)
+    config = TrainConfig.from_dict(state["config"])
+    dims = state["dims"]
+    actor = HybridActor(dims["node"], dims["edge"], config.model).to(device)
+    actor.load_state_dict(state["actor"])
+    return actor.eval(), config
