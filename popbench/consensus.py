@@ -16,12 +16,20 @@ it belongs to; ADMM drives the copies to a consensus value ``z_s``:
   angles subtract and wrap);
 * x-update: ``x^i ← argmin f_i(x^i) + (ρ/2) Σ_s ‖(x_s^i ⊖ z_s) + u_s^i‖²_{Λ_s^i}`` by a few damped
   Gauss–Newton steps (one sparse solve each); the robot owning vertex 0 keeps it fixed (gauge);
-* dual update: ``u_s^i ← u_s^i + x_s^i ⊖ z_s`` (scaled form);
-* stop when both the primal residual ``max_{s,i} ‖x_s^i ⊖ z_s‖_∞`` and the dual residual
-  ``max_s ‖z_s^{k+1} ⊖ z_s^k‖_∞`` are below ``tol`` (m and rad alike).
+* dual update: ``u_s^i ← u_s^i + x_s^i ⊖ z_s`` (scaled form), from ``u = 0``; so even copies
+  that already agree at the optimum first move apart (each robot's half-weighted local objective
+  is not stationary there on its own) until the duals build up;
+* stop when the copies agree: primal residual ``max_{s,i} ‖x_s^i ⊖ z_s‖_∞ < tol`` (m and rad
+  alike). The dual residual ``max_s ‖z_s^{k+1} ⊖ z_s^k‖_∞`` is recorded, not used to stop:
+  consensus reconciles the robots' estimates; it is not run to global optimality (ADMM's tail is
+  slow — on a 7×60 synthetic problem the dual residual still shrinks by only ~0.2 % per
+  iteration after 300 iterations); Prop-V2's LM refinement does that.
 
 ``ρ`` is dimensionless: it scales the copies' own information, so ``ρ = 1`` makes the consensus
-penalty on a copy as stiff as the robot's own edges on that pose.
+penalty on a copy as stiff as the robot's own edges on that pose. Default ``ρ = 3``: of
+``ρ ∈ {1, 3, 10, 30}`` it reached agreement (residuals < 1e-3) in the fewest iterations on
+synthetic V2 problems (3×30 and 7×60 poses, copies = optimum + N(0, 0.05²) noise); one damped
+Gauss–Newton step per x-update converged as fast as three.
 
 Messages: per iteration each non-owner copy sends ``x_s^i + u_s^i`` to the owner of ``s`` and
 receives ``z_s`` back — two pose messages per non-owner copy.
@@ -56,7 +64,7 @@ class ConsensusOutcome:
         iterations: ADMM iterations run.
         primal_residuals: ``(iterations,)`` max copy disagreement ``‖x_s^i ⊖ z_s‖_∞`` per iteration.
         dual_residuals: ``(iterations,)`` max consensus change ``‖z^{k+1} ⊖ z^k‖_∞``.
-        converged: both residuals fell below ``tol``.
+        converged: the primal residual fell below ``tol``.
         messages: pose messages exchanged (see the module docstring).
         parallel_s: simulated makespan: Σ over iterations of the slowest robot's x-update [s].
     """
@@ -233,10 +241,10 @@ def _pin_gauge(z: np.ndarray, copies: np.ndarray, gauge_copy: np.ndarray, separa
 def admm_consensus(
     problem: DistributedProblem,
     local_poses: list[np.ndarray],
-    rho: float = 1.0,
-    iterations: int = 100,
-    tol: float = 1e-4,
-    local_steps: int = 3,
+    rho: float = 3.0,
+    iterations: int = 200,
+    tol: float = 1e-3,
+    local_steps: int = 1,
 ) -> ConsensusOutcome:
     """Reconcile the robots' separator copies by information-weighted ADMM (module docstring).
 
@@ -245,7 +253,7 @@ def admm_consensus(
         local_poses: one ``(n_r, 3)`` estimate per robot, rows in ``local_vertices(r)`` order.
         rho: dimensionless penalty ``ρ > 0`` (multiplies each copy's information ``Λ_s^i``).
         iterations: maximum ADMM iterations (≥ 0).
-        tol: stopping threshold on the primal and dual residuals [m, rad].
+        tol: stopping threshold on the primal residual (copy disagreement) [m, rad].
         local_steps: damped Gauss–Newton steps per x-update (≥ 1).
 
     Raises:
@@ -301,7 +309,7 @@ def admm_consensus(
         primal.append(float(np.abs(disagreement).max(initial=0.0)))
         dual.append(float(np.abs(minus(z_new, z)).max(initial=0.0)))
         z = z_new
-        if primal[-1] < tol and dual[-1] < tol:
+        if primal[-1] < tol:
             converged = True
             break
 
