@@ -130,9 +130,10 @@ def _dot_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _symmetric_times_rows(s: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """``S_i @ rows_i`` for symmetric 2×2 ``S`` stored as ``(n, 3)`` ``[S₀₀, S₀₁, S₁₁]`` and
     ``rows`` ``(n, 2, r)``; returns ``(n, 2, r)``."""
-    r0, r1 = rows[:, 0], rows[:, 1]
-    s00, s01, s11 = s[:, 0:1], s[:, 1:2], s[:, 2:3]
-    return np.stack([s00 * r0 + s01 * r1, s01 * r0 + s11 * r1], axis=1)
+    full = np.empty((s.shape[0], 2, 2))
+    full[:, 0, 0], full[:, 1, 1] = s[:, 0], s[:, 2]
+    full[:, 0, 1] = full[:, 1, 0] = s[:, 1]
+    return full @ rows
 
 
 def multipliers(x: np.ndarray, euclidean_gradient: np.ndarray) -> np.ndarray:
