@@ -156,3 +156,37 @@ class TrainConfig:
 def _build(kind: type, values: dict[str, Any]) -> Any:
     tuple_fields = {f.name for f in fields(kind) if str(f.type).startswith("tuple")}
     return kind(**{k: tuple(v) if k in tuple_fields else v for k, v in values.items()})
+
+
+# CPU-feasible deviation from the paper (used for the committed checkpoints, see
+# agents/checkpoints/README.md): on a shared 2-core CPU one GA-SAC update of the paper-size model
+# (5 × 128 GNN, 2 × 512 heads, batch 64, n = 7) takes ~16 s, so the paper's 10,000-frame warm-up
+# and 30,000-transition buffer cannot be reached in ~30 min. Every width is divided by ~4, the
+# GNN has 3 layers (actor) / 2 (critic), the minibatch is 32 and the warm-up / buffer are scaled
+# to the ~25k frames such a run can collect. γ, learning rates, τ and the entropy targets stay.
+CPU_SMALL = TrainConfig(
+    model=ModelConfig(
+        hidden=32,
+        layers=3,
+        edge_hidden=4,
+        gate_hidden=16,
+        memory_hidden=32,
+        edge_head_hidden=64,
+        correction_hidden=(128, 128),
+        critic_hidden=32,
+        critic_layers=2,
+        critic_projection=128,
+        critic_mlp=(128, 64),
+    ),
+    algorithm=AlgorithmConfig(
+        buffer_size=10_000, batch_size=32, warmup_frames=1_024, updates_per_batch=4
+    ),
+    experiment=ExperimentConfig(
+        num_envs=8,
+        frames=24_000,
+        frames_per_batch=128,
+        checkpoint_interval=2_048,
+        eval_interval=2_048,
+    ),
+)
+PRESETS: dict[str, TrainConfig] = {"paper": TrainConfig(), "cpu-small": CPU_SMALL}

@@ -358,6 +358,92 @@ def solve(
         _print_summary(record)
 
 
+# ----- train --------------------------------------------------------------------------------
+
+TRAIN_ENVS = ("V1", "V2", "V3")
+TRAIN_DEVICES = ("cpu", "cuda")
+
+
+def train_config(
+    env: str,
+    robots: int,
+    seed: int,
+    frames: int | None,
+    device: str,
+    out: str | None,
+    preset: str,
+    progress: bool = True,
+):
+    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied."""
+    import dataclasses
+
+    from agents.config import PRESETS
+
+    if env not in TRAIN_ENVS:
+        raise ValueRangeError("--env", env, " or ".join(TRAIN_ENVS))
+    if robots < 1:
+        raise ValueRangeError("--robots", robots, "an integer ≥ 1")
+    if frames is not None and frames < 1:
+        raise ValueRangeError("--frames", frames, "an integer ≥ 1")
+    if device not in TRAIN_DEVICES:
+        raise ValueRangeError("--device", device, " or ".join(TRAIN_DEVICES))
+    if preset not in PRESETS:
+        raise ValueRangeError("--preset", preset, " or ".join(PRESETS))
+    if device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
+    config = PRESETS[preset]
+    experiment = dataclasses.replace(
+        config.experiment,
+        noise=env,
+        robots=robots,
+        seed=seed,
+        device=device,
+        frames=config.experiment.frames if frames is None else frames,
+        out_dir=out or f"runs/ga-sac-{env}-n{robots}-s{seed}",
+        progress=progress,
+    )
+    return dataclasses.replace(config, experiment=experiment)
+
+
+@app.command(
+    epilog=(
+        "Examples:\n\n"
+        "  popbench train --env V2 --robots 7 --seed 0\n\n"
+        "  popbench train --env V2 --robots 3 --preset cpu-small --frames 20000 --out runs/n3\n\n"
+        "Writes checkpoint.pt, metrics.csv and learning_curve.png into --out; a rerun with the "
+        "same --out resumes from checkpoint.pt unless --no-resume."
+    )
+)
+def train(
+    env: Annotated[str, typer.Option(help="Training noise setting: V1, V2 or V3.")] = "V2",
+    robots: Annotated[int, typer.Option(help="Team size n (the critic is built for n).")] = 7,
+    seed: Annotated[int, typer.Option(help="Seed of the environments, torch and replay.")] = 0,
+    frames: Annotated[
+        int | None, typer.Option(help="Total environment frames (default: the preset's).")
+    ] = None,
+    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    out: Annotated[
+        str | None, typer.Option(help="Run directory (default runs/ga-sac-ENV-nN-sS).")
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume/--no-resume", help="Continue from OUT/checkpoint.pt.")
+    ] = True,
+    preset: Annotated[
+        str,
+        typer.Option(help="Model/algorithm sizes: paper (5×128 GNN, §IV-A) or cpu-small."),
+    ] = "paper",
+) -> None:
+    """Train GA-SAC actors (TorchRL collector + replay) with checkpoints and learning curves."""
+    from agents.trainer import train as run_training
+
+    config = train_config(env, robots, seed, frames, device, out, preset)
+    run_dir = run_training(config, resume=resume)
+    typer.echo(f"trained {config.experiment.frames} frames; run directory {run_dir}")
+
+
 # ----- entry point --------------------------------------------------------------------------
 
 

@@ -1,0 +1,230 @@
+"""Incremental deterministic inference of `HybridActor` over fixed-topology local graphs.
+
+An episode of prop-v1 has one step per local edge, and a step moves one pose per robot (the head
+of the chosen edge). A full GNN pass per step would make an episode O(E²). With L gated
+edge-conditioned layers, a move of vertex q changes
+
+* layer 0: q's node features and the residuals (hence gate inputs) of the edges incident to q;
+* layer ℓ: the messages and gates of the edges incident to S_ℓ (the vertices whose input
+  embedding changed) and the embeddings h^(ℓ+1) of S_{ℓ+1} = S_ℓ ∪ their neighbours,
+
+so `IncrementalPolicy` caches, per layer, the node embeddings, the basis products B_k h of every
+node (encoder.EdgeConditionedConv), both directed messages and the gate z of every edge, and
+recomputes only the ℓ-hop rows (S grows by one hop per layer: O(D^L) rows, independent of the
+graph size). The edge embeddings [h_p ‖ h_q ‖ a_pq], the first layer of the edge-selection head
+applied to them, and the masked sum behind the mean-pooled latent are cached the same way.
+
+What stays O(E) per step, with a small constant: scoring every unprocessed edge (the edge head's
+ReLU + last layer on cached first-layer outputs; the memory context changes every step) and the
+arg-max over them, which is inherent to choosing among all edges. Everything is batched over the
+G robots (one disjoint graph of G·V vertices).
+
+Exception: node features are poses in the frame of the robot's local vertex 0, so a step that
+moves vertex 0 changes every node feature of that robot and refreshes that robot's whole graph
+(a handful of steps per episode).
+
+The output equals `HybridActor.forward(..., deterministic=True)` run on the full observation at
+every step (tests/test_prop_methods.py checks this to float32 round-off).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from agents.actor import HybridActor, masked_log_softmax
+from agents.encoder import INTER_LOOP_COLUMN, LOG_INFO_COLUMNS, GraphBatch
+
+
+class IncrementalPolicy:
+    """Deterministic `HybridActor` with cached per-layer state over G fixed-topology graphs.
+
+    Args:
+        actor: the trained shared actor (eval mode; its weights are not changed).
+        graphs: the G local graphs at the start of the episode (topology, attributes, features).
+        incident: [G, V, D] long, local edge slots incident to each vertex, padded with E
+            (envs.core's "incident" table without its trash row).
+    """
+
+    @torch.no_grad()
+    def __init__(self, actor: HybridActor, graphs: GraphBatch, incident: Tensor) -> None:
+        self.actor = actor
+        encoder = actor.encoder
+        g, v, _ = graphs.node_features.shape
+        e = graphs.edge_index.shape[-1]
+        self.shape = (g, v, e)
+        n_nodes, n_edges = g * v, g * e
+        offsets = torch.arange(g).view(-1, 1)
+        local = graphs.edge_index.clamp(0, v - 1)
+        sentinel_node = torch.tensor([n_nodes])
+        self.tails = torch.cat([(local[:, 0] + offsets * v).reshape(-1), sentinel_node])
+        self.heads = torch.cat([(local[:, 1] + offsets * v).reshape(-1), sentinel_node])
+        self.valid = torch.cat([graphs.edge_mask.reshape(-1).float(), torch.zeros(1)])
+        attr = graphs.edge_attr.reshape(n_edges, -1)
+        self.attr = torch.cat([attr, torch.zeros(1, attr.shape[1])])
+        self.log_info = self.attr[:, LOG_INFO_COLUMNS]
+        self.inter_loop = self.attr[:, INTER_LOOP_COLUMN]
+        flag = torch.zeros(n_edges + 1, 1)
+        directed = (torch.cat([self.attr, flag], -1), torch.cat([self.attr, flag + 1.0], -1))
+        # Static per-layer mixing coefficients φ̂(a) = [1, φ(a)] of both directions.
+        self.coefficients = [
+            tuple(torch.cat([torch.ones(n_edges + 1, 1), conv.edge_net(a)], -1) for a in directed)
+            for conv in encoder.convs
+        ]
+        slots = incident[:, :v]
+        self.incident = torch.where(slots < e, slots + offsets.view(-1, 1, 1) * e, n_edges)
+        self.incident = self.incident.reshape(n_nodes, -1)
+        degree = torch.zeros(n_nodes + 1).index_add(0, self.tails[:-1], self.valid[:-1])
+        degree = degree.index_add(0, self.heads[:-1], self.valid[:-1])
+        self.degree = degree[:n_nodes].clamp(min=1.0)
+        self.node_weight = graphs.node_mask.reshape(-1).float()
+        self.node_count = graphs.node_mask.sum(1).clamp(min=1).float()
+        self.residuals = torch.cat([graphs.residuals.reshape(n_edges, 3), torch.zeros(1, 3)])
+
+        dims = [graphs.node_features.shape[-1]] + [encoder.hidden] * len(encoder.convs)
+        self.h = [torch.zeros(n_nodes + 1, d) for d in dims]  # row N: the sentinel vertex
+        self.h[0][:n_nodes] = graphs.node_features.reshape(n_nodes, -1)
+        self.bases = [
+            torch.zeros(n_nodes + 1, conv.num_bases * conv.out_dim) for conv in encoder.convs
+        ]
+        self.messages = [
+            (torch.zeros(n_edges + 1, encoder.hidden), torch.zeros(n_edges + 1, encoder.hidden))
+            for _ in encoder.convs
+        ]
+        self.gates = [torch.zeros(n_edges + 1) for _ in encoder.convs]
+
+        first = actor.edge_head[0]
+        self.embedding_width = 2 * encoder.hidden + attr.shape[1]
+        self.head_embedding_weight = first.weight[:, : self.embedding_width]
+        self.head_context_weight = first.weight[:, self.embedding_width :]
+        self.embeddings = torch.zeros(g, e + 1, self.embedding_width)
+        self.head_hidden = torch.zeros(g, e + 1, first.out_features)
+        self.pooled_sum = torch.zeros(g, encoder.hidden)
+
+        self.memory = actor.initial_memory(g)
+        self.prev_edge = torch.full((g,), e, dtype=torch.long)  # E = "none" (zero embedding)
+        self.prev_delta = torch.zeros(g, 3)
+        self._propagate(torch.arange(n_nodes), torch.arange(n_edges))
+
+    # -- cache maintenance -----------------------------------------------------------------------
+
+    def _edges_at(self, vertices: Tensor) -> Tensor:
+        """Unique flat ids of the real edges incident to `vertices`."""
+        edges = torch.unique(self.incident[vertices])
+        return edges[edges < self.valid.shape[0] - 1]
+
+    @torch.no_grad()
+    def _propagate(self, changed: Tensor, first_edges: Tensor) -> None:
+        """Recompute the caches after the features of `changed` vertices and the residuals of
+        `first_edges` changed (both flat ids)."""
+        n_nodes = self.h[0].shape[0] - 1
+        encoder = self.actor.encoder
+        vertices = changed
+        for layer, (conv, gate) in enumerate(zip(encoder.convs, encoder.gates, strict=True)):
+            # Residuals feed every layer's gate: the edges of `first_edges` are refreshed too.
+            edges = torch.unique(torch.cat([self._edges_at(vertices), first_edges]))
+            self.bases[layer][vertices] = conv.bases(self.h[layer][vertices])
+            shape = (-1, conv.num_bases, conv.out_dim)
+            forward_coeff, reverse_coeff = self.coefficients[layer]
+            # eq. ecc_message: the forward message goes head → tail, the reverse tail → head.
+            m_forward = torch.einsum(
+                "mk,mko->mo", forward_coeff[edges], self.bases[layer][self.heads[edges]].view(shape)
+            )
+            m_reverse = torch.einsum(
+                "mk,mko->mo", reverse_coeff[edges], self.bases[layer][self.tails[edges]].view(shape)
+            )
+            self.messages[layer][0][edges] = m_forward
+            self.messages[layer][1][edges] = m_reverse
+            self.gates[layer][edges] = (
+                gate(
+                    0.5 * (m_forward + m_reverse),
+                    self.residuals[edges],
+                    self.log_info[edges],
+                    self.inter_loop[edges],
+                    deterministic=True,
+                )
+                * self.valid[edges]
+            )
+            ends = torch.cat([vertices, self.tails[edges], self.heads[edges]])
+            vertices = torch.unique(ends[ends < n_nodes])
+            updated = self._node_update(layer, conv, vertices)
+            if layer == len(encoder.convs) - 1:  # masked sum behind the mean-pooled latent
+                change = (updated - self.h[-1][vertices]) * self.node_weight[vertices, None]
+                self.pooled_sum.index_add_(0, vertices // self.shape[1], change)
+            self.h[layer + 1][vertices] = updated
+        self._refresh_readout(vertices)
+
+    def _node_update(self, layer: int, conv, vertices: Tensor) -> Tensor:
+        """h^(ℓ+1) of `vertices` from cached gated messages (eqs. mean_aggr, node_update)."""
+        slots = self.incident[vertices]  # [S, D]
+        z = self.gates[layer][slots].unsqueeze(-1)
+        to_tail = (self.tails[slots] == vertices.unsqueeze(-1)).unsqueeze(-1)
+        to_head = (self.heads[slots] == vertices.unsqueeze(-1)).unsqueeze(-1)
+        forward, reverse = self.messages[layer]
+        arriving = to_tail * forward[slots] + to_head * reverse[slots]
+        mean = (z * arriving).sum(1) / self.degree[vertices].unsqueeze(-1)
+        h = self.h[layer][vertices]
+        return conv.activation(conv.update_net(torch.cat([h, mean], -1)))
+
+    def _refresh_readout(self, vertices: Tensor) -> None:
+        """Edge embeddings and the edge head's first layer for the edges touching the
+        final-layer `vertices` (whose h^(L) was just rewritten)."""
+        e = self.shape[2]
+        final = self.h[-1]
+        edges = self._edges_at(vertices)
+        graph_of, slot = edges // e, edges % e
+        embedding = torch.cat(
+            [final[self.tails[edges]], final[self.heads[edges]], self.attr[edges]], -1
+        )
+        self.embeddings[graph_of, slot] = embedding
+        self.head_hidden[graph_of, slot] = embedding @ self.head_embedding_weight.T
+
+    # -- acting ----------------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def act(self, action_mask: Tensor) -> tuple[Tensor, Tensor]:
+        """One deterministic decision for every graph: (edge [G] long, delta [G, 3]).
+
+        Args:
+            action_mask: [G, E + 1] bool, the env's action mask.
+        """
+        actor = self.actor
+        g = self.shape[0]
+        rows = torch.arange(g)
+        pooled = self.pooled_sum / self.node_count.unsqueeze(-1)
+        prev_embedding = self.embeddings[rows, self.prev_edge]
+        memory_input = torch.cat([pooled, prev_embedding, self.prev_delta / actor.delta_max], -1)
+        self.memory = actor.memory(memory_input, self.memory)
+        context = self.memory[:, -1]
+        first, last = actor.edge_head[0], actor.edge_head[2]
+        context_term = context @ self.head_context_weight.T + first.bias
+        hidden = torch.relu(self.head_hidden + context_term.unsqueeze(1))
+        logits = (hidden @ last.weight.T).squeeze(-1) + last.bias
+        edge = masked_log_softmax(logits, action_mask).argmax(-1)
+        chosen = torch.cat([self.embeddings[rows, edge], context], -1)
+        mean, _ = actor.correction_head(chosen).chunk(2, dim=-1)
+        delta = actor.delta_max * torch.tanh(mean)
+        self.prev_edge, self.prev_delta = edge, delta
+        return edge, delta
+
+    @torch.no_grad()
+    def observe(self, moved: Tensor, features: Tensor, edges: Tensor, residuals: Tensor) -> None:
+        """Apply the environment's change after a step.
+
+        Args:
+            moved: [S] flat vertex ids (graph · V + local id) whose node features changed.
+            features: [S, d_v] their new node features.
+            edges: [R] flat edge ids (graph · E + slot) whose residuals changed.
+            residuals: [R, 3] their new residuals.
+        """
+        if moved.numel() == 0:
+            return
+        self.h[0][moved] = features
+        self.residuals[edges] = residuals
+        self._propagate(moved, edges)
+
+    def inliers(self, threshold: float = 0.5) -> Tensor:
+        """[G, E] bool: layer-averaged gate > threshold (encoder.Encoding.inliers)."""
+        g, _, e = self.shape
+        gates = torch.stack([z[:-1] for z in self.gates]).mean(0)
+        return (gates > threshold).view(g, e)

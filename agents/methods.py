@@ -1,0 +1,288 @@
+"""prop-v1 and prop-v2 behind the method interface (paper §III-D; DESIGN "Methods").
+
+prop-v1
+    1. Every robot holds its local graph (owned poses + separator copies) and runs the shared
+       trained actor (actor replication: the n = 7 actor serves any n) deterministically for one
+       episode: T = max_i |E_i| steps, each robot correcting one of its unprocessed local edges per
+       step (the environment's dynamics, envs.core.PGOCore with the measurement reward).
+       The robots' actors are batched into one forward per step and run incrementally
+       (agents.inference.IncrementalPolicy: only the L-hop neighbourhood of the moved poses is
+       recomputed).
+    2. Information-weighted ADMM consensus over the separators (popbench.consensus) reconciles
+       the copies; the global estimate is the consensus output.
+prop-v2
+    prop-v1, then 75 Levenberg–Marquardt iterations (popbench.solvers.lm) from its output.
+
+Result fields
+    iterations = T (actor steps). history = F of the robots' copies after each step, counted
+    edge by edge with each inter-robot edge half from each of its two robots (so history[0] is
+    F at the start), with the final entry replaced by F after consensus. inlier_mask: an edge is
+    an outlier when the layer-averaged gate of its final actor pass is ≤ 0.5 in *either* robot
+    that holds it (an inter-robot edge is seen by two robots; one flag suffices). messages: the
+    consensus's pose messages (the actor steps exchange nothing).
+    parallel_s (simulated makespan): the robots' actors run batched in one process here, so each
+    step's wall time is attributed evenly, step_s / n per robot (a lower bound on a robot acting
+    alone, which loses the batching), plus the setup time / n and the consensus's own parallel_s
+    (per ADMM iteration the slowest robot's x-update). prop-v2 adds LM's wall time (centralised).
+Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
+    callers pass a Budget for every method); `budget.seconds`, if given, stops the episode early.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from agents.actor import HybridActor
+from agents.checkpoint import load_actor
+from agents.encoder import GraphBatch
+from agents.inference import IncrementalPolicy
+from popbench import objective
+from popbench.consensus import admm_consensus
+from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
+from popbench.methods import Budget, Result
+
+CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
+DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "prop-v2-n7.pt"
+INITS = ("problem", "given", "odometry", "chordal")
+PROP_V2_LM_ITERATIONS = 75
+
+
+@dataclasses.dataclass
+class Episode:
+    """One prop-v1 actor episode (before consensus).
+
+    Attributes:
+        local_poses: each robot's local copy, rows in `problem.local_vertices(r)` order.
+        inlier_mask: (M,) bool over the global edges (see the module docstring).
+        history: (T + 1,) F of the copies after each step (module docstring).
+        step_s: (T,) wall time of each batched step [s].
+        setup_s: packing the problem and the first full GNN pass [s].
+    """
+
+    local_poses: list[np.ndarray]
+    inlier_mask: np.ndarray
+    history: np.ndarray
+    step_s: np.ndarray
+    setup_s: float
+
+
+@lru_cache(maxsize=4)
+def cached_actor(path: str, device: str) -> HybridActor:
+    """The actor of a checkpoint file, loaded once per process."""
+    actor, _ = load_actor(path, device)
+    return actor
+
+
+def starting_problem(problem: DistributedProblem, init: str) -> DistributedProblem:
+    """`problem` whose graph holds the `init` estimate ("problem"/"given": its own poses)."""
+    if init not in INITS:
+        raise ValueRangeError("init", init, ", ".join(INITS))
+    if init in ("problem", "given"):
+        return problem
+    graph = problem.graph
+    if init == "odometry":
+        poses = graph.odometry_initial()
+    else:
+        from popbench.solvers.chordal import chordal_initialisation
+
+        poses = chordal_initialisation(graph)
+    graph = dataclasses.replace(graph, poses=np.asarray(poses, dtype=np.float64))
+    return DistributedProblem(graph, problem.initial, problem.outlier_mask)
+
+
+def node_features(core, robots: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
+    """[S, 6] float32 node features of local `vertices` of `robots` (envs.core.observation)."""
+    from envs.core import between
+
+    t = core.tensors
+    poses = t["poses"][0]
+    relative = between(poses[robots, 0], poses[robots, vertices])
+    features = torch.stack(
+        [
+            relative[:, 0],
+            relative[:, 1],
+            torch.sin(relative[:, 2]),
+            torch.cos(relative[:, 2]),
+            t["log_degree"][0][robots, vertices],
+            t["owned"][0][robots, vertices].to(poses.dtype),
+        ],
+        -1,
+    )
+    return (features * t["node_mask"][0][robots, vertices].unsqueeze(-1)).to(torch.float32)
+
+
+def moved_vertices(core, heads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(robots, local vertices) whose features changed after robots moved `heads` [n]: the
+    moved vertex, or every real vertex of a robot that moved its frame vertex 0."""
+    num_vertices = core.dims.vertices
+    acting = heads < num_vertices
+    reframed = acting & (heads == 0)
+    robots = torch.nonzero(acting & ~reframed).squeeze(-1)
+    vertices = heads[robots]
+    if bool(reframed.any()):
+        node_mask = core.tensors["node_mask"][0]
+        extra = torch.nonzero(node_mask & reframed.unsqueeze(-1))
+        robots = torch.cat([robots, extra[:, 0]])
+        vertices = torch.cat([vertices, extra[:, 1]])
+    return robots, vertices
+
+
+def run_episode(
+    actor: HybridActor, problem: DistributedProblem, seconds: float | None = None
+) -> Episode:
+    """Run the actor for one episode on every robot's local graph (module docstring, step 1)."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    start = time.perf_counter()
+    n = problem.num_robots
+    dims = Dimensions.of([problem])
+    core = PGOCore(n, dims, 1, delta_max=actor.delta_max.tolist(), reward="F")
+    core.load([problem], [0])
+    t = core.tensors
+    observation = {key: value.unsqueeze(0) for key, value in core.observation().items()}
+    graphs = GraphBatch(
+        **{key: value.reshape(n, *value.shape[3:]) for key, value in observation.items()},
+        action_mask=core.action_mask()[0],
+    )
+    policy = IncrementalPolicy(actor, graphs, t["incident"][0])
+    num_edges = dims.edges
+    edge_ids, edge_mask = t["edge_ids"][0], t["edge_mask"][0]
+    holders = np.bincount(edge_ids[edge_mask].numpy(), minlength=problem.graph.num_edges)
+    share = torch.zeros(n, num_edges, dtype=t["costs"].dtype)
+    share[edge_mask] = torch.as_tensor(
+        1.0 / holders[edge_ids[edge_mask].numpy()], dtype=share.dtype
+    )
+
+    def copies_objective() -> float:
+        return float((t["costs"][0][:, :num_edges] * share).sum())
+
+    history = [copies_objective()]
+    setup_s = time.perf_counter() - start
+    step_s = []
+    horizon = int(t["num_edges"].max())
+    rows = torch.arange(n)
+    for _ in range(horizon):
+        tick = time.perf_counter()
+        edge, delta = policy.act(core.action_mask()[0])
+        heads = t["heads"][0][rows, edge]
+        core.step(edge.view(1, n), delta.view(1, n, 3))
+        robots, vertices = moved_vertices(core, heads)
+        acting = torch.nonzero(heads < dims.vertices).squeeze(-1)
+        slots = t["incident"][0][acting, heads[acting]]  # [k, D], padding = E
+        owner = acting.unsqueeze(-1).expand_as(slots)
+        real = slots < num_edges
+        owner, slots = owner[real], slots[real]
+        policy.observe(
+            robots * dims.vertices + vertices,
+            node_features(core, robots, vertices),
+            owner * num_edges + slots,
+            t["residuals"][0][owner, slots].to(torch.float32),
+        )
+        step_s.append(time.perf_counter() - tick)
+        history.append(copies_objective())
+        if seconds is not None and time.perf_counter() - start > seconds:
+            break
+
+    flagged = edge_mask & ~policy.inliers()
+    outlier = np.zeros(problem.graph.num_edges, dtype=bool)
+    outlier[edge_ids[flagged].numpy()] = True
+    return Episode(core.local_poses(0), ~outlier, np.array(history), np.array(step_s), setup_s)
+
+
+def solve_prop_v1(
+    problem: DistributedProblem,
+    budget: Budget | None = None,
+    init: str = "problem",
+    seed: int = 0,
+    checkpoint: str | Path | None = None,
+    device: str = "cpu",
+    consensus_iterations: int = 200,
+    **_: object,
+) -> Result:
+    """prop-v1: replicated trained actors on every local graph, then ADMM consensus.
+
+    Args:
+        problem: the distributed problem (any number of robots).
+        budget: see the module docstring (only `seconds` is used).
+        init: "problem"/"given" (problem.graph.poses), "odometry" or "chordal".
+        seed: seeds torch (inference is deterministic; kept for the interface).
+        checkpoint: actor checkpoint (default: agents/checkpoints/prop-v2-n7.pt).
+        device: torch device of the actor ("cpu").
+        consensus_iterations: ADMM iterations at most.
+    """
+    budget = budget or Budget()
+    started = time.perf_counter()
+    torch.manual_seed(seed)
+    problem = starting_problem(problem, init)
+    actor = cached_actor(str(checkpoint or DEFAULT_CHECKPOINT), device)
+    with torch.no_grad():
+        episode = run_episode(actor, problem, budget.seconds)
+    graph = problem.graph
+    actor_poses = problem.assemble(episode.local_poses)
+    consensus = admm_consensus(problem, episode.local_poses, iterations=consensus_iterations)
+    costs = objective.evaluate(graph, consensus.poses)
+    history = episode.history.copy()
+    history[-1] = costs.F
+    n = problem.num_robots
+    return Result(
+        poses=consensus.poses,
+        F=costs.F,
+        F_chordal=costs.F_chordal,
+        chi2=costs.chi2,
+        wall_s=time.perf_counter() - started,
+        parallel_s=(episode.setup_s + float(episode.step_s.sum())) / n + consensus.parallel_s,
+        iterations=int(episode.step_s.size),
+        history=history,
+        inlier_mask=episode.inlier_mask,
+        messages=int(consensus.messages),
+        extras={
+            "F_init": float(episode.history[0]),
+            "F_actor": objective.objective(graph, actor_poses),
+            "consensus_iterations": int(consensus.iterations),
+            "consensus_converged": bool(consensus.converged),
+            "step_ms_mean": 1e3 * float(episode.step_s.mean()) if episode.step_s.size else 0.0,
+            "actor_s": episode.setup_s + float(episode.step_s.sum()),
+            "flagged_outliers": int(np.count_nonzero(~episode.inlier_mask)),
+        },
+    )
+
+
+def solve_prop_v2(
+    problem: DistributedProblem,
+    budget: Budget | None = None,
+    init: str = "problem",
+    seed: int = 0,
+    checkpoint: str | Path | None = None,
+    device: str = "cpu",
+    lm_iterations: int = PROP_V2_LM_ITERATIONS,
+    **options: object,
+) -> Result:
+    """prop-v2: prop-v1, then `lm_iterations` (75) Levenberg–Marquardt iterations."""
+    from popbench.solvers.lm import solve_graph
+
+    first = solve_prop_v1(problem, budget, init, seed, checkpoint, device, **options)
+    started = time.perf_counter()
+    refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations)
+    lm_s = time.perf_counter() - started
+    costs = objective.evaluate(problem.graph, refined.poses)
+    return Result(
+        poses=refined.poses,
+        F=costs.F,
+        F_chordal=costs.F_chordal,
+        chi2=costs.chi2,
+        wall_s=first.wall_s + lm_s,
+        parallel_s=first.parallel_s + lm_s,
+        iterations=first.iterations + int(refined.iterations),
+        history=np.concatenate([first.history, refined.history[1:]]),
+        inlier_mask=first.inlier_mask,
+        messages=first.messages,
+        extras={**first.extras, "F_prop_v1": first.F, "lm_iterations": int(refined.iterations)},
+    )

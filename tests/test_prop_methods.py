@@ -1,0 +1,206 @@
+"""prop-v1 / prop-v2: incremental inference against the full actor pass, Result contract,
+prop-v2 ≤ prop-v1, actor replication at n = 35, the `solve` and `train` CLI."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from agents.actor import HybridActor
+from agents.checkpoint import save_checkpoint
+from agents.config import ModelConfig, TrainConfig
+from agents.encoder import GraphBatch
+from agents.inference import IncrementalPolicy
+from agents.methods import (
+    DEFAULT_CHECKPOINT,
+    moved_vertices,
+    node_features,
+    solve_prop_v1,
+    solve_prop_v2,
+)
+from popbench import objective
+from popbench.cli import main, train_config
+from popbench.errors import ValueRangeError
+from popbench.io import write_g2o
+from popbench.methods import Budget, get_method
+from popbench.solvers.lm import solve_graph
+from popbench.synthetic import make_problem
+
+TINY = ModelConfig(
+    hidden=8,
+    layers=3,
+    edge_hidden=3,
+    gate_hidden=8,
+    memory_hidden=8,
+    edge_head_hidden=12,
+    correction_hidden=(16, 16),
+    delta_max=(0.5, 0.5, 0.3),
+)
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A randomly initialised actor saved in the checkpoint format `load_actor` reads."""
+    torch.manual_seed(0)
+    actor = HybridActor(6, 11, TINY)
+    path = tmp_path_factory.mktemp("ckpt") / "tiny.pt"
+    config = TrainConfig(model=TINY).to_dict()
+    save_checkpoint(
+        path, {"config": config, "dims": {"node": 6, "edge": 11}, "actor": actor.state_dict()}
+    )
+    return path
+
+
+@pytest.fixture(scope="module")
+def problem():
+    return make_problem(robots=3, noise="V2", poses_per_robot=20, seed=5)
+
+
+def test_incremental_inference_equals_full_forward(problem) -> None:
+    """Every step's decision of IncrementalPolicy equals HybridActor.forward on the full
+    observation (fresh full GNN pass per step), and so do the final gates."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    torch.manual_seed(1)
+    actor = HybridActor(6, 11, TINY).eval()
+    n = problem.num_robots
+    dims = Dimensions.of([problem])
+    core = PGOCore(n, dims, 1, delta_max=TINY.delta_max, reward="F")
+    core.load([problem], [0])
+    t = core.tensors
+
+    def full_graphs() -> GraphBatch:
+        obs = core.observation()
+        return GraphBatch(
+            **{k: v.reshape(n, *v.shape[2:]) for k, v in obs.items()},
+            action_mask=core.action_mask()[0],
+        )
+
+    policy = IncrementalPolicy(actor, full_graphs(), t["incident"][0])
+    memory = actor.initial_memory(n)
+    prev_edge = torch.zeros(n, dims.edges + 1)
+    prev_delta = torch.zeros(n, 3)
+    rows = torch.arange(n)
+    reframes = 0
+    with torch.no_grad():
+        for _ in range(int(t["num_edges"].max())):
+            reference = actor(full_graphs(), memory, prev_edge, prev_delta, deterministic=True)
+            edge, delta = policy.act(core.action_mask()[0])
+            assert torch.equal(edge, reference.edge)
+            torch.testing.assert_close(delta, reference.delta, atol=1e-5, rtol=1e-4)
+            memory, prev_edge, prev_delta = reference.memory, reference.edge_weights, delta
+            heads = t["heads"][0][rows, edge]
+            reframes += int((heads == 0).sum())
+            core.step(edge.view(1, n), delta.view(1, n, 3))
+            robots, vertices = moved_vertices(core, heads)
+            acting = torch.nonzero(heads < dims.vertices).squeeze(-1)
+            slots = t["incident"][0][acting, heads[acting]]
+            owner = acting.unsqueeze(-1).expand_as(slots)
+            real = slots < dims.edges
+            policy.observe(
+                robots * dims.vertices + vertices,
+                node_features(core, robots, vertices),
+                owner[real] * dims.edges + slots[real],
+                t["residuals"][0][owner[real], slots[real]].float(),
+            )
+        final = actor(full_graphs(), memory, prev_edge, prev_delta, deterministic=True)
+    assert torch.equal(policy.inliers(), final.encoding.inliers() & t["edge_mask"][0])
+    assert reframes > 0  # the frame-vertex path (whole-graph refresh) was exercised
+
+
+def test_prop_v1_result_fields(problem, tiny_checkpoint: Path) -> None:
+    result = solve_prop_v1(problem, Budget(10), init="problem", seed=3, checkpoint=tiny_checkpoint)
+    graph = problem.graph
+    assert result.poses.shape == (graph.num_poses, 3)
+    costs = objective.evaluate(graph, result.poses)
+    assert result.F == pytest.approx(costs.F)
+    assert result.chi2 == pytest.approx(costs.chi2)
+    assert result.inlier_mask.shape == (graph.num_edges,)
+    assert result.inlier_mask.dtype == bool
+    horizon = max(local.graph.num_edges for local in problem.local_graphs)
+    assert result.iterations == horizon
+    assert result.history.shape == (horizon + 1,)
+    # history[0]: per-edge costs of the copies with inter-robot edges split in halves = F(start).
+    assert result.history[0] == pytest.approx(objective.objective(graph, graph.poses), rel=1e-9)
+    assert result.history[-1] == pytest.approx(result.F)
+    assert 0 < result.parallel_s <= result.wall_s
+    assert result.messages > 0
+
+
+def test_prop_v2_not_worse_than_prop_v1(problem, tiny_checkpoint: Path) -> None:
+    v1 = solve_prop_v1(problem, Budget(), checkpoint=tiny_checkpoint)
+    v2 = solve_prop_v2(problem, Budget(), checkpoint=tiny_checkpoint)
+    assert v2.extras["F_prop_v1"] == pytest.approx(v1.F)
+    assert v2.F <= v1.F + 1e-12
+    # The independent reference: LM run to convergence from the ground truth.
+    optimum = solve_graph(problem.graph, problem.graph.ground_truth, iterations=200).F
+    assert v2.F == pytest.approx(optimum, rel=1e-3)
+
+
+def test_registry_and_init_options(problem, tiny_checkpoint: Path) -> None:
+    solve = get_method("prop-v1")
+    result = solve(problem, Budget(5), init="odometry", seed=0, checkpoint=tiny_checkpoint)
+    assert np.isfinite(result.F)
+    with pytest.raises(ValueRangeError, match="init"):
+        solve(problem, Budget(5), init="random", checkpoint=tiny_checkpoint)
+
+
+def test_replication_to_35_robots_without_retraining(tiny_checkpoint: Path) -> None:
+    """The same (n-agnostic) actor serves a 35-robot team."""
+    big = make_problem(robots=35, noise="V2", poses_per_robot=8, seed=2)
+    checkpoint = DEFAULT_CHECKPOINT if DEFAULT_CHECKPOINT.is_file() else tiny_checkpoint
+    result = solve_prop_v1(big, Budget(), checkpoint=checkpoint, consensus_iterations=20)
+    assert result.poses.shape == (big.graph.num_poses, 3)
+    assert np.isfinite(result.F)
+    assert result.inlier_mask.shape == (big.graph.num_edges,)
+
+
+def test_cli_solve_prop_v1_json(problem, tiny_checkpoint: Path, tmp_path: Path, capsys) -> None:
+    path = tmp_path / "small.g2o"
+    write_g2o(problem.graph, path)
+    code = main(
+        [
+            "solve",
+            str(path),
+            "--method",
+            "prop-v1",
+            "--robots",
+            "3",
+            "--json",
+            "-o",
+            f"checkpoint={tiny_checkpoint}",
+        ]
+    )
+    assert code == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["method"] == "prop-v1" and record["robots"] == 3
+    assert np.isfinite(record["F"]) and record["iterations"] > 0
+
+
+@pytest.mark.parametrize(
+    ("args", "phrase"),
+    [
+        (["--env", "V4"], "--env"),
+        (["--robots", "0"], "--robots"),
+        (["--frames", "-5"], "--frames"),
+        (["--device", "tpu"], "--device"),
+        (["--preset", "huge"], "--preset"),
+    ],
+)
+def test_cli_train_bad_values_are_one_line(args, phrase, capsys) -> None:
+    assert main(["train", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and phrase in err
+
+
+def test_train_config_applies_command_values() -> None:
+    config = train_config("V3", 3, 11, 500, "cpu", "runs/x", "cpu-small", progress=False)
+    assert config.experiment.noise == "V3" and config.experiment.robots == 3
+    assert config.experiment.seed == 11 and config.experiment.frames == 500
+    assert config.experiment.out_dir == "runs/x"
+    assert config.model.hidden == 32  # the cpu-small preset, not the paper's 128
