@@ -27,24 +27,35 @@ MM-PGO where every robot updates each iteration.
 **Local update** (dpgo ``PGOAgent::updateX``): with neighbours fixed, robot α minimises
 ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` over ``(St(2, r) × R^r)^{n_α}`` by Riemannian
 trust-region Newton steps with truncated (Steihaug–Toint) CG, preconditioned by a cached sparse
-LU factor of ``Q_αα + λI`` (dpgo's preconditioner); by default one accepted step with ≤ 10 tCG
-iterations (dpgo: 3 steps, ≤ 50; see :class:`LocalOptions`). The linear term ``G_α`` only needs
-the neighbours' separator poses.
+Cholesky factor of ``Q_αα + λI`` (dpgo's preconditioner); by default one accepted step with ≤ 10
+tCG iterations (dpgo: 3 steps, ≤ 50; see :class:`LocalOptions`). The linear term ``G_α`` only
+needs the neighbours' separator poses. **Batched:** the robots of a class share no edge, so their
+problems are independent and are solved together as one block-diagonal problem (one ``Q_cc``
+product and one Cholesky solve of the class per tCG iteration), with every scalar of the
+trust-region / tCG iteration (radius, step, curvature, acceptance, stopping) kept per robot, so
+each robot follows exactly the iteration it would run alone (up to floating-point summation
+order).
 
 **Acceleration** (RBCD++, REFERENCES §2.4), with ``B`` blocks (colour classes):
 ``γ ← (1 + √(1 + 4B²γ²)) / (2B)``, ``α ← 1/(γB)``, ``Y ← Proj((1−α)X + αV)``, the selected block
 ``X_b ← LocalOpt(Y)`` (others ``X ← Y``), ``V ← Proj(V + γ(X − Y))``. Restart ("fixed", cc-pgo):
 every ``restart_interval`` (30) iterations a plain update from ``X`` and ``V = X``, ``γ = 0``;
-("adaptive", ml-pgo, §4.1): whenever the objective increases, the iteration is redone as a plain
+("adaptive", ml-pgo, §4.1): whenever the objective increases by more than a relative
+``ADAPTIVE_RESTART_TOLERANCE`` (1e-9: increases below it are floating-point noise of the
+incrementally maintained ``QX`` near convergence, which triggered hundreds of useless restarts on
+mit with 35 robots), the iteration is redone as a plain
 update from ``X`` and the momentum reset.
 
 **Accounting.** ``parallel_s`` = Σ over rounds of (the slowest updating robot's local update time
 + the round's vectorised bookkeeping — extrapolation, gradient norms, objective — divided by the
-number of robots, as each robot would do its share). ``messages`` = Σ over rounds of the separator
-poses (poses with an edge to another robot) of every robot whose estimate changed that round
-(all robots in an accelerated round, the updated class in a plain one). ``history[k]`` =
-``2 f(X_k)``, the relaxation's F_chordal after round ``k`` (``history[0]`` at the start);
-the rounded estimate's F / F_chordal are evaluated once, at the end.
+number of robots, as each robot would do its share). A robot's local update time is modelled
+from the batched class update: its measured time split among the class's robots in proportion
+to their work ``nnz(Q_αα) × (Hessian–vector products + 1)`` (:func:`robot_shares`).
+``messages`` = Σ over rounds of the separator poses (poses with an edge to another robot) of
+every robot whose estimate changed that round (all robots in an accelerated round, the updated
+class in a plain one). ``history[k]`` = ``2 f(X_k)``, the relaxation's F_chordal after round
+``k`` (``history[0]`` at the start); the rounded estimate's F / F_chordal are evaluated once,
+at the end.
 """
 
 from __future__ import annotations
@@ -56,7 +67,8 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import SuperLU, eigsh, splu
+from cholespy import CholeskySolverD, MatrixType
+from scipy.sparse.linalg import eigsh
 
 from popbench import objective, se2
 from popbench.errors import ValueRangeError
@@ -65,6 +77,7 @@ from popbench.methods import Budget, Result
 
 PRECONDITIONER_SHIFT = 0.1  # λ in Q_αα + λI (dpgo)
 RESTART_INTERVAL = 30  # fixed restart period of RBCD++ (dpgo restartInterval)
+ADAPTIVE_RESTART_TOLERANCE = 1e-9  # relative increase of f that triggers an adaptive restart
 MAX_REJECTIONS = 10  # trust-region rejections allowed in one robot update (dpgo)
 
 
@@ -251,31 +264,63 @@ def certificate_min_eigenvalue(q: sp.spmatrix, x: np.ndarray) -> float:
     return float(value[0])
 
 
-# ----- robots, blocks and the local solver ----------------------------------------------------
+# ----- colour classes and the local solver -------------------------------------------------
+
+
+class CholeskyPreconditioner:
+    """``(Q_cc + λI)⁻¹`` of one colour class by a cached sparse Cholesky factor (CHOLMOD via
+    cholespy, fill-reducing ordering chosen by CHOLMOD); the class's ``Q_cc`` is block diagonal
+    (one block per robot), so this is every robot's dpgo preconditioner at once."""
+
+    def __init__(self, hessian: sp.csr_matrix) -> None:
+        shifted = (hessian + PRECONDITIONER_SHIFT * sp.identity(hessian.shape[0])).tocsr()
+        self._factor = CholeskySolverD(
+            shifted.shape[0],
+            shifted.indptr.astype(np.int32),
+            shifted.indices.astype(np.int32),
+            shifted.data,
+            MatrixType.CSR,
+        )
+
+    def solve(self, v: np.ndarray) -> np.ndarray:
+        """``(Q_cc + λI)⁻¹ v`` for ``v`` ``(n, 3, r)``, returned ``(n, 3, r)``."""
+        out = np.empty_like(v)
+        self._factor.solve(np.ascontiguousarray(flat(v)), flat(out))
+        return out
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class RobotBlock:
-    """Robot α's share of ``Q``.
+class ClassBlock:
+    """The robots of one colour class (no two share an edge), updated together.
 
     Attributes:
-        poses: ``(n_α,)`` global ids of its poses (ascending).
-        hessian: ``Q_αα`` ``(3n_α, 3n_α)`` CSR.
-        preconditioner: LU factor of ``Q_αα + λI`` (symmetric-mode SuperLU, minimum degree on
-            ``Qᵀ + Q``).
-        reach_rows: ``(k,)`` rows of ``Q`` with a nonzero in robot α's columns (its own rows and
+        robots: ``(k,)`` robot ids of the class.
+        poses: ``(n_c,)`` global ids of their poses, robot by robot (ascending within a robot).
+        robot_of_pose: ``(n_c,)`` index ``0..k−1`` into ``robots`` of each pose's owner.
+        hessian: ``Q_cc`` ``(3n_c, 3n_c)`` CSR, block diagonal with the robots' ``Q_αα``.
+        preconditioner: the cached factor of ``Q_cc + λI``.
+        reach_rows: ``(m,)`` rows of ``Q`` with a nonzero in the class's columns (its own rows and
             its neighbours' separator rows).
-        reach: ``Q[reach_rows, α's rows]`` ``(k, 3n_α)`` CSR: how a change of α's poses changes
-            ``QX``.
-        separators: number of its poses with an edge to another robot.
+        reach: ``Q[reach_rows, class rows]`` ``(m, 3n_c)`` CSR: how a change of the class's
+            poses changes ``QX``.
+        separators: number of the class's poses with an edge to another robot.
+        robot_nnz: ``(k,)`` nonzeros of each robot's ``Q_αα``: the work weight of one of its
+            Hessian–vector products (see :func:`robot_shares`).
     """
 
+    robots: np.ndarray
     poses: np.ndarray
+    robot_of_pose: np.ndarray
     hessian: sp.csr_matrix
-    preconditioner: SuperLU
+    preconditioner: CholeskyPreconditioner
     reach_rows: np.ndarray
     reach: sp.csr_matrix
     separators: int
+    robot_nnz: np.ndarray
+
+    @property
+    def num_robots(self) -> int:
+        return self.robots.size
 
 
 def pose_rows(poses: np.ndarray) -> np.ndarray:
@@ -283,29 +328,39 @@ def pose_rows(poses: np.ndarray) -> np.ndarray:
     return (3 * poses[:, None] + np.arange(3)).ravel()
 
 
-def robot_blocks(q: sp.csr_matrix, graph: PoseGraph, robots: np.ndarray) -> list[RobotBlock]:
-    """One :class:`RobotBlock` per robot of the assignment ``robots`` ``(N,)``."""
+def class_blocks(
+    q: sp.csr_matrix, graph: PoseGraph, robots: np.ndarray, classes: list[np.ndarray]
+) -> list[ClassBlock]:
+    """One :class:`ClassBlock` per colour class of the assignment ``robots`` ``(N,)``."""
     crossing = robots[graph.tails] != robots[graph.heads]
     is_separator = np.zeros(graph.num_poses, dtype=bool)
     is_separator[graph.tails[crossing]] = True
     is_separator[graph.heads[crossing]] = True
     blocks = []
-    for robot in range(int(robots.max()) + 1):
-        poses = np.flatnonzero(robots == robot)
+    for members in classes:
+        owned = [np.flatnonzero(robots == robot) for robot in members]
+        poses = np.concatenate(owned)
+        robot_of_pose = np.repeat(np.arange(members.size), [p.size for p in owned])
         rows = pose_rows(poses)
-        columns = q[:, rows].tocsr()  # Q symmetric: α's columns
+        columns = q[:, rows].tocsr()  # Q symmetric: the class's columns
         reach_rows = np.flatnonzero(np.diff(columns.indptr))
-        reach = columns[reach_rows]
-        hessian = q[rows][:, rows].tocsr()
-        shifted = (hessian + PRECONDITIONER_SHIFT * sp.identity(rows.size)).tocsc()
-        factor = splu(
-            shifted,
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
+        hessian = q[rows][:, rows].tocsr()  # no edge joins two robots of a class
+        robot_nnz = np.bincount(
+            np.repeat(robot_of_pose, 3), np.diff(hessian.indptr), minlength=members.size
         )
-        separators = int(np.count_nonzero(is_separator[poses]))
-        blocks.append(RobotBlock(poses, hessian, factor, reach_rows, reach, separators))
+        blocks.append(
+            ClassBlock(
+                robots=members,
+                poses=poses,
+                robot_of_pose=robot_of_pose,
+                hessian=hessian,
+                preconditioner=CholeskyPreconditioner(hessian),
+                reach_rows=reach_rows,
+                reach=columns[reach_rows],
+                separators=int(np.count_nonzero(is_separator[poses])),
+                robot_nnz=robot_nnz,
+            )
+        )
     return blocks
 
 
@@ -347,8 +402,20 @@ class LocalOptions:
     gradient_tolerance: float = 1e-2
 
 
-def _inner(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.vdot(a, b))
+class _PerRobot:
+    """Per-robot reductions and broadcasts over a class's poses (robot ``robot_of_pose[i]``
+    owns pose ``i``): the vectorised tCG / RTR keep one scalar per robot."""
+
+    def __init__(self, robot_of_pose: np.ndarray, num_robots: int) -> None:
+        self.owner, self.count = robot_of_pose, num_robots
+
+    def inner(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``⟨a_α, b_α⟩`` per robot, ``(k,)``, for ``a``, ``b`` ``(n_c, 3, r)``."""
+        return np.bincount(self.owner, np.einsum("nkr,nkr->n", a, b), minlength=self.count)
+
+    def spread(self, values: np.ndarray) -> np.ndarray:
+        """Per-robot ``(k,)`` values broadcastable against ``(n_c, 3, r)``."""
+        return values[self.owner][:, None, None]
 
 
 def truncated_cg(
@@ -356,107 +423,146 @@ def truncated_cg(
     preconditioned_gradient: np.ndarray,
     hessian: Callable[[np.ndarray], np.ndarray],
     precondition: Callable[[np.ndarray], np.ndarray],
-    radius: float,
+    radius: np.ndarray,
     max_iterations: int,
-) -> tuple[np.ndarray, np.ndarray, bool]:
+    active: np.ndarray,
+    robots: _PerRobot,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Preconditioned Steihaug–Toint truncated CG for ``min ⟨g,η⟩ + ½⟨η,Hη⟩``, ``‖η‖_P ≤ Δ``
-    (Absil, Mahony & Sepulchre 2008, Alg. 11; the trust region in the preconditioner's norm).
+    (Absil, Mahony & Sepulchre 2008, Alg. 11; the trust region in the preconditioner's norm),
+    run for every robot of a class at once: all scalars (step, radius, stopping) are per robot
+    ``(k,)``; ``H`` and ``P`` are block diagonal over the robots, so the robots' iterations are
+    independent and each stops on its own test (a stopped robot's iterate is frozen).
 
     Args:
-        gradient: ``g``; preconditioned_gradient: ``P⁻¹g`` (projected), already computed.
+        gradient: ``g`` ``(n_c, 3, r)``; preconditioned_gradient: ``P⁻¹g`` (projected).
+        radius: ``Δ`` per robot ``(k,)``.
+        active: ``(k,)`` robots that run; the others return ``η = 0``.
 
     Returns:
-        ``(η, Hη, hit_boundary)``.
+        ``(η, Hη, hit_boundary (k,), hessian_products (k,))``.
     """
     eta = np.zeros_like(gradient)
     h_eta = np.zeros_like(gradient)
     residual = gradient.copy()
-    z = preconditioned_gradient
-    r_z = _inner(residual, z)
-    delta = -z
-    e_pe, e_pd, d_pd = 0.0, 0.0, r_z  # ‖η‖²_P, ⟨η,δ⟩_P, ‖δ‖²_P
-    initial_norm = np.sqrt(_inner(residual, residual))
-    stop_norm = initial_norm * min(initial_norm, 0.1)  # ‖r‖ ≤ ‖r₀‖ min(‖r₀‖^θ, κ), θ=1, κ=0.1
-    for _ in range(max_iterations):
-        h_delta = hessian(delta)
-        curvature = _inner(delta, h_delta)
-        alpha = r_z / curvature if curvature > 0 else np.inf
-        e_pe_next = e_pe + 2.0 * alpha * e_pd + alpha**2 * d_pd
-        if curvature <= 0 or e_pe_next >= radius**2:
+    r_z = robots.inner(residual, preconditioned_gradient)
+    delta = -preconditioned_gradient
+    e_pe, e_pd, d_pd = np.zeros_like(r_z), np.zeros_like(r_z), r_z  # ‖η‖²_P, ⟨η,δ⟩_P, ‖δ‖²_P
+    initial_norm = np.sqrt(robots.inner(residual, residual))
+    stop_norm = initial_norm * np.minimum(initial_norm, 0.1)  # ‖r₀‖ min(‖r₀‖^θ, κ), θ=1, κ=0.1
+    running = active.copy()
+    hit_boundary = np.zeros_like(active)
+    products = np.zeros(active.shape, dtype=np.int64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(max_iterations):
+            h_delta = hessian(delta)
+            products += running
+            curvature = robots.inner(delta, h_delta)
+            alpha = np.where(curvature > 0, r_z / curvature, np.inf)
+            e_pe_next = e_pe + 2.0 * alpha * e_pd + alpha**2 * d_pd
+            boundary = running & ((curvature <= 0) | ~(e_pe_next < radius**2))
             tau = (-e_pd + np.sqrt(e_pd**2 + d_pd * (radius**2 - e_pe))) / d_pd
-            return eta + tau * delta, h_eta + tau * h_delta, True
-        e_pe = e_pe_next
-        eta = eta + alpha * delta
-        h_eta = h_eta + alpha * h_delta
-        residual = residual + alpha * h_delta
-        if np.sqrt(_inner(residual, residual)) <= stop_norm:
-            break
-        z = precondition(residual)
-        r_z_next = _inner(residual, z)
-        beta = r_z_next / r_z
-        r_z = r_z_next
-        delta = -z + beta * delta
-        e_pd = beta * (e_pd + alpha * d_pd)
-        d_pd = r_z + beta**2 * d_pd
-    return eta, h_eta, False
+            running &= ~boundary
+            hit_boundary |= boundary
+            step = np.where(boundary, tau, np.where(running, alpha, 0.0))
+            eta += robots.spread(step) * delta
+            h_eta += robots.spread(step) * h_delta
+            residual += robots.spread(np.where(running, alpha, 0.0)) * h_delta
+            e_pe = np.where(running, e_pe_next, e_pe)
+            running &= np.sqrt(robots.inner(residual, residual)) > stop_norm
+            if not running.any():
+                break
+            z = precondition(residual)
+            r_z_next = robots.inner(residual, z)
+            beta = np.where(running, r_z_next / r_z, 0.0)
+            r_z = np.where(running, r_z_next, r_z)
+            delta = -z + robots.spread(beta) * delta
+            e_pd = np.where(running, beta * (e_pd + alpha * d_pd), e_pd)
+            d_pd = np.where(running, r_z + beta**2 * d_pd, d_pd)
+    return eta, h_eta, hit_boundary, products
 
 
 def local_update(
-    block: RobotBlock, z: np.ndarray, linear: np.ndarray, options: LocalOptions
-) -> np.ndarray:
-    """Robot α's update: RTR on ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` from ``z`` ``(n_α, 3, r)``
-    with the linear term ``linear = G_α`` ``(n_α, 3, r)``; returns the new ``Z``.
+    block: ClassBlock, z: np.ndarray, linear: np.ndarray, options: LocalOptions
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every robot α of the class runs RTR on ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` from ``z``
+    ``(n_c, 3, r)`` with the linear term ``linear = G_α`` ``(n_c, 3, r)``; vectorised over the
+    class with per-robot trust regions, acceptance and stopping (the robots are independent).
 
-    Runs until ``options.rtr_iterations`` steps were accepted, the gradient norm falls below
-    ``options.gradient_tolerance``, or ``MAX_REJECTIONS`` steps were rejected (each rejection
-    shrinks the radius ×¼, as dpgo does). The first radius is 10 × the P-norm of the
+    Each robot runs until ``options.rtr_iterations`` steps were accepted, its gradient norm
+    falls below ``options.gradient_tolerance``, or ``MAX_REJECTIONS`` steps were rejected (each
+    rejection shrinks its radius ×¼, as dpgo does). Its first radius is 10 × the P-norm of its
     preconditioned gradient.
-    """
 
-    def cost_and_gradient(point: np.ndarray) -> tuple[float, np.ndarray]:
+    Returns:
+        The new ``Z`` and each robot's number of Hessian–vector products ``(k,)`` (its work).
+    """
+    robots = _PerRobot(block.robot_of_pose, block.num_robots)
+
+    def cost_and_gradient(point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         euclidean = apply_q(block.hessian, point) + linear
-        return _inner(point, 0.5 * (euclidean + linear)), euclidean
+        return robots.inner(point, 0.5 * (euclidean + linear)), euclidean
 
     def precondition(point: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return project_tangent(point, block.preconditioner.solve(flat(v)).reshape(v.shape))
+        return project_tangent(point, block.preconditioner.solve(v))
 
     cost, euclidean = cost_and_gradient(z)
-    radius = np.inf
-    accepted = rejected = 0
-    moved = True
-    while accepted < options.rtr_iterations and rejected < MAX_REJECTIONS:
-        if moved:  # the gradient, its preconditioned version and Λ at the new point
+    radius = np.full(block.num_robots, np.inf)
+    accepted = np.zeros(block.num_robots, dtype=np.int64)
+    rejected = np.zeros_like(accepted)
+    products = np.zeros_like(accepted)
+    pending = np.ones(block.num_robots, dtype=bool)
+    moved = pending
+    while True:
+        if moved.any():  # the gradient, its preconditioned version and Λ at the new point
             gradient = riemannian_gradient(z, euclidean)
-            if np.sqrt(_inner(gradient, gradient)) < options.gradient_tolerance:
+            pending &= np.sqrt(robots.inner(gradient, gradient)) >= options.gradient_tolerance
+            if not pending.any():
                 break
             preconditioned = precondition(z, gradient)
-            if not np.isfinite(radius):
-                radius = 10.0 * np.sqrt(max(_inner(preconditioned, gradient), 0.0))
+            first = ~np.isfinite(radius)
+            p_norm = np.sqrt(np.maximum(robots.inner(preconditioned, gradient), 0.0))
+            radius[first] = 10.0 * p_norm[first]
             lam = multipliers(z, euclidean)
             point = z
-        eta, h_eta, hit_boundary = truncated_cg(
+        eta, h_eta, hit_boundary, used = truncated_cg(
             gradient,
             preconditioned,
             lambda v, point=point, lam=lam: riemannian_hessian(block.hessian, point, lam, v),
             lambda v, point=point: precondition(point, v),
             radius,
             options.tcg_iterations,
+            pending,
+            robots,
         )
-        model_decrease = -(_inner(gradient, eta) + 0.5 * _inner(eta, h_eta))
+        products += used
+        model_decrease = -(robots.inner(gradient, eta) + 0.5 * robots.inner(eta, h_eta))
         candidate = retract(z, eta)
         candidate_cost, candidate_euclidean = cost_and_gradient(candidate)
-        rho = (cost - candidate_cost) / model_decrease if model_decrease > 0 else -np.inf
-        if rho < 0.25:
-            radius /= 4.0
-        elif rho > 0.75 and hit_boundary:
-            radius *= 2.0
-        moved = rho > 1e-4 and candidate_cost < cost
-        if moved:
-            z, cost, euclidean = candidate, candidate_cost, candidate_euclidean
-            accepted += 1
-        else:
-            rejected += 1
-    return z
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = np.where(model_decrease > 0, (cost - candidate_cost) / model_decrease, -np.inf)
+        radius = np.where(pending & (rho < 0.25), radius / 4.0, radius)
+        radius = np.where(pending & (rho > 0.75) & hit_boundary, radius * 2.0, radius)
+        moved = pending & (rho > 1e-4) & (candidate_cost < cost)
+        z = np.where(robots.spread(moved), candidate, z)
+        euclidean = np.where(robots.spread(moved), candidate_euclidean, euclidean)
+        cost = np.where(moved, candidate_cost, cost)
+        accepted += moved
+        rejected += pending & ~moved
+        pending &= (accepted < options.rtr_iterations) & (rejected < MAX_REJECTIONS)
+        if not pending.any():
+            break
+    return z, products
+
+
+def robot_shares(block: ClassBlock, elapsed_s: float, products: np.ndarray) -> np.ndarray:
+    """Split the measured time ``elapsed_s`` [s] of a batched class update among its robots in
+    proportion to their work, ``nnz(Q_αα) × (Hessian–vector products + 1)`` (each product is
+    one sparse multiply, one preconditioner solve of similar fill and a few vector operations on
+    the robot's rows; the ``+ 1`` is the gradient and cost evaluation every update does).
+    Returns ``(k,)`` seconds: what each robot would have spent computing alone."""
+    work = block.robot_nnz * (products + 1.0)
+    return elapsed_s * work / work.sum()
 
 
 # ----- the block-coordinate iteration ----------------------------------------------------------
@@ -512,58 +618,44 @@ class _Update(NamedTuple):
 class _Rounds:
     """One block round: select a colour class at ``Y`` and update its robots in parallel."""
 
-    def __init__(
-        self,
-        blocks: list[RobotBlock],
-        classes: list[np.ndarray],
-        options: RBCDOptions,
-    ) -> None:
-        self.blocks, self.classes, self.options = blocks, classes, options
-        self.class_poses = [np.concatenate([blocks[r].poses for r in c]) for c in classes]
+    def __init__(self, blocks: list[ClassBlock], options: RBCDOptions) -> None:
+        self.blocks, self.options = blocks, options
         num_poses = sum(block.poses.size for block in blocks)
         self.class_of_pose = np.empty(num_poses, dtype=np.int64)
-        for colour, poses in enumerate(self.class_poses):
-            self.class_of_pose[poses] = colour
-        self.class_separators = [sum(blocks[r].separators for r in c) for c in classes]
+        for colour, block in enumerate(blocks):
+            self.class_of_pose[block.poses] = colour
 
     def select(self, y: np.ndarray, q_y: np.ndarray, iteration: int) -> int:
         if self.options.selection == "round-robin":
-            return iteration % len(self.classes)
+            return iteration % len(self.blocks)
         scores = np.bincount(
-            self.class_of_pose, pose_gradient_norms(y, q_y), minlength=len(self.classes)
+            self.class_of_pose, pose_gradient_norms(y, q_y), minlength=len(self.blocks)
         )
         return int(np.argmax(scores))
 
     def update(self, y: np.ndarray, q_y: np.ndarray, iteration: int) -> _Update:
         """The robots of the selected class minimise their local problems at ``Y`` (``QY``
-        given); the other robots keep ``Y``."""
-        colour = self.select(y, q_y, iteration)
+        given), batched into one block-diagonal update; the other robots keep ``Y``. The
+        measured time is split among the class's robots by :func:`robot_shares`."""
+        block = self.blocks[self.select(y, q_y, iteration)]
+        start = time.perf_counter()
+        z = y[block.poses]
+        linear = q_y[block.poses] - apply_q(block.hessian, z)  # G_α = Q_{α,β} Y_β
+        z_new, products = local_update(block, z, linear, self.options.local)
         x_new, q_x_new = y.copy(), q_y.copy()
-        q_x_flat = flat(q_x_new)
-        times = []
-        for robot in self.classes[colour]:
-            start = time.perf_counter()
-            block = self.blocks[robot]
-            z = y[block.poses]
-            linear = q_y[block.poses] - apply_q(block.hessian, z)  # G_α = Q_{α,β} Y_β
-            z_new = local_update(block, z, linear, self.options.local)
-            x_new[block.poses] = z_new
-            q_x_flat[block.reach_rows] += block.reach @ flat(z_new - z)
-            times.append(time.perf_counter() - start)
+        x_new[block.poses] = z_new
+        flat(q_x_new)[block.reach_rows] += block.reach @ flat(z_new - z)
+        elapsed_s = time.perf_counter() - start
+        shares = robot_shares(block, elapsed_s, products)
         return _Update(
-            x_new,
-            q_x_new,
-            self.class_poses[colour],
-            max(times),
-            sum(times),
-            self.class_separators[colour],
+            x_new, q_x_new, block.poses, float(shares.max()), elapsed_s, block.separators
         )
 
 
 def run_rbcd(
     q: sp.csr_matrix,
-    blocks: list[RobotBlock],
-    classes: list[np.ndarray],
+    blocks: list[ClassBlock],
+    num_robots: int,
     x0: np.ndarray,
     budget: Budget,
     options: RBCDOptions,
@@ -571,8 +663,8 @@ def run_rbcd(
     """RBCD / RBCD++ from ``x0`` ``(N, 3, r)`` for ``budget.iterations`` rounds (or until
     ``budget.seconds``); see the module docstring for the round, restarts and accounting."""
     start = time.perf_counter()
-    rounds = _Rounds(blocks, classes, options)
-    num_blocks, num_robots = len(classes), len(blocks)
+    rounds = _Rounds(blocks, options)
+    num_blocks = len(blocks)
     all_separators = sum(block.separators for block in blocks)
     x, q_x = x0, apply_q(q, x0)
     cost = relaxed_cost(x, q_x)
@@ -601,7 +693,8 @@ def run_rbcd(
         slowest_s, robots_s = update.slowest_s, update.robots_s
         cost_new = relaxed_cost(update.x, update.q_x)
         restart = options.accelerated and plain
-        if options.accelerated and not plain and options.restart == "adaptive" and cost_new > cost:
+        increased = cost_new > cost + ADAPTIVE_RESTART_TOLERANCE * abs(cost)
+        if options.accelerated and not plain and options.restart == "adaptive" and increased:
             update = rounds.update(x, q_x, iteration)  # redo the round without momentum
             slowest_s, robots_s = slowest_s + update.slowest_s, robots_s + update.robots_s
             messages += update.separators
@@ -670,10 +763,11 @@ def solve_rbcd(
     x0 = lift(initial_poses(graph, init), random_stiefel(rank, seed))
     initialised = time.perf_counter()
     q = connection_laplacian(graph)
-    blocks = robot_blocks(q, graph, robots)
     classes = colour_robots(graph, robots)
+    blocks = class_blocks(q, graph, robots, classes)
+    num_robots = int(robots.max()) + 1
     setup_s = time.perf_counter() - initialised
-    run = run_rbcd(q, blocks, classes, x0, budget, options)
+    run = run_rbcd(q, blocks, num_robots, x0, budget, options)
     anchor = 0  # vertex 0 (owned by robot 0) keeps its estimate: the gauge
     poses = round_solution(run.x, anchor, graph.poses[anchor])
     costs = objective.evaluate(graph, poses)
@@ -697,7 +791,7 @@ def solve_rbcd(
         F_chordal=costs.F_chordal,
         chi2=costs.chi2,
         wall_s=wall_s,
-        parallel_s=(initialised - start) + setup_s / len(blocks) + run.parallel_s,
+        parallel_s=(initialised - start) + setup_s / num_robots + run.parallel_s,
         iterations=run.iterations,
         history=run.history,
         messages=run.messages,

@@ -91,7 +91,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=1000)
     parser.add_argument("--datasets", nargs="+", default=list(OPTIMA))
     parser.add_argument("--robots", nargs="+", type=int, default=[3, 7, 35])
-    parser.add_argument("--odometry", nargs="+", default=["intel", "mit", "m3500"])
+    parser.add_argument("--odometry", nargs="*", default=["intel", "mit", "m3500"])
     args = parser.parse_args()
 
     print(f"## chordal start, {args.iterations} rounds\n")

@@ -134,3 +134,31 @@ def test_mit_three_robots_reaches_the_published_optimum(name):
     assert result.F_chordal / MIT_OPTIMUM - 1 < 1e-3
     assert result.F_chordal / MIT_OPTIMUM - 1 > -1e-4  # not below the certified optimum
     assert result.history[0] > 80.0  # from the chordal start (88.13), not from the optimum
+
+
+def test_batched_class_update_equals_each_robot_updating_alone(small_graph, rng):
+    robots = np.repeat(np.arange(6), 5)
+    classes = rbcd.colour_robots(small_graph, robots)
+    members = next(c for c in classes if c.size >= 2)
+    q = rbcd.connection_laplacian(small_graph)
+    x = _random_point(rng, small_graph.num_poses, 5)
+    q_x = rbcd.apply_q(q, x)
+    options = rbcd.LocalOptions(rtr_iterations=2, tcg_iterations=10, gradient_tolerance=1e-6)
+
+    def update(group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        (block,) = rbcd.class_blocks(q, small_graph, robots, [group])
+        z = x[block.poses]
+        linear = q_x[block.poses] - rbcd.apply_q(block.hessian, z)
+        return block.poses, *rbcd.local_update(block, z, linear, options)
+
+    poses, together, products = update(members)
+    assert np.all(products > 0)
+    for index, robot in enumerate(members):
+        own, alone, own_products = update(np.array([robot]))
+        mine = np.isin(poses, own)
+        np.testing.assert_allclose(together[mine], alone, atol=1e-12)
+        assert products[index] == own_products[0]
+    # the update decreased every robot's local cost
+    moved = x.copy()
+    moved[poses] = together
+    assert _cost(q, moved) < _cost(q, x)
