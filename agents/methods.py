@@ -135,9 +135,13 @@ def moved_vertices(core, heads: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
 
 
 def run_episode(
-    actor: HybridActor, problem: DistributedProblem, seconds: float | None = None
+    actor: HybridActor,
+    problem: DistributedProblem,
+    seconds: float | None = None,
+    max_steps: int | None = None,
 ) -> Episode:
-    """Run the actor for one episode on every robot's local graph (module docstring, step 1)."""
+    """Run the actor for one episode on every robot's local graph (module docstring, step 1);
+    `seconds` / `max_steps` cut it short (benchmarks)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
@@ -168,6 +172,7 @@ def run_episode(
     setup_s = time.perf_counter() - start
     step_s = []
     horizon = int(t["num_edges"].max())
+    horizon = horizon if max_steps is None else min(horizon, max_steps)
     rows = torch.arange(n)
     for _ in range(horizon):
         tick = time.perf_counter()

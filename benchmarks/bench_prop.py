@@ -1,0 +1,134 @@
+"""prop-v1 inference speed (issue 5, item 7) and prop-v1 vs mm-pgo on city10k.
+
+    POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_prop.py
+    (options: --sizes 60,250,1000,2500,10000 --steps 100 --full-steps 5 --skip-city
+     --checkpoint PATH --threads 1)
+
+Part 1 — per-step time against the local graph size. One robot, synthetic V2 local graphs of
+P poses (P from 60 to 10,000; ≈ 1.15·P edges). For each P: the median wall time of one prop-v1
+step (incremental actor pass + environment step + cache refresh, agents.methods.run_episode,
+first `--steps` steps) and, measured in the same run, the median time of one *full* actor pass
+over the same graph (what a non-incremental implementation pays per step). Printed with the
+ratio full / incremental.
+
+Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + ADMM consensus) and
+mm-pgo's 1000 iterations (baselines.mm_pgo.solve, init="given": the same odometry start), with
+F, wall and simulated parallel time, and the wall-time ratio mm-pgo / prop-v1.
+
+The actor is the committed n = 7 checkpoint (agents/checkpoints/prop-v2-n7.pt); without it, a
+randomly initialised actor of the cpu-small preset's size (timings do not depend on training).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from agents.actor import HybridActor
+from agents.checkpoint import load_actor
+from agents.config import CPU_SMALL
+from agents.encoder import GraphBatch
+from agents.methods import DEFAULT_CHECKPOINT, run_episode, solve_prop_v1
+from popbench.methods import Budget
+from popbench.synthetic import make_problem
+
+
+def actor_for(path: Path) -> tuple[HybridActor, str]:
+    if path.is_file():
+        return load_actor(path)[0], str(path)
+    torch.manual_seed(0)
+    return HybridActor(6, 11, CPU_SMALL.model).eval(), "random cpu-small actor"
+
+
+@torch.no_grad()
+def full_pass_seconds(actor: HybridActor, problem, repeats: int) -> float:
+    """Median time of one full (non-incremental) deterministic actor pass on `problem`."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    n = problem.num_robots
+    core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=actor.delta_max.tolist(), reward="F")
+    core.load([problem], [0])
+    obs = core.observation()
+    graphs = GraphBatch(
+        **{key: value.reshape(n, *value.shape[2:]) for key, value in obs.items()},
+        action_mask=core.action_mask()[0],
+    )
+    memory = actor.initial_memory(n)
+    prev_edge = torch.zeros(n, graphs.action_mask.shape[-1])
+    prev_delta = torch.zeros(n, 3)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def per_step_table(actor: HybridActor, sizes: list[int], steps: int, full_steps: int) -> None:
+    print("\nper-step time, one robot, synthetic V2 local graph of P poses")
+    print(f"{'P':>7} {'edges':>7} {'incremental ms':>15} {'full pass ms':>13} {'full/incr':>10}")
+    for poses in sizes:
+        problem = make_problem(robots=1, noise="V2", poses_per_robot=poses, seed=0)
+        episode = run_episode(actor, problem, max_steps=steps)
+        incremental = float(np.median(episode.step_s))
+        full = full_pass_seconds(actor, problem, full_steps)
+        print(
+            f"{poses:>7} {problem.graph.num_edges:>7} {1e3 * incremental:>15.2f} "
+            f"{1e3 * full:>13.2f} {full / incremental:>10.1f}"
+        )
+
+
+def city_comparison(robots: int) -> None:
+    from baselines import mm_pgo
+    from envs import dataset_problem
+
+    problem = dataset_problem("city10k", robots)
+    print(f"\ncity10k, n = {robots}, odometry start (F = {problem_f(problem):.4g})")
+    print(f"{'method':>22} {'F':>12} {'wall s':>9} {'parallel s':>11} {'iterations':>11}")
+    prop = solve_prop_v1(problem, Budget(), init="problem")
+    mm = mm_pgo.solve(problem, Budget(1000), init="given")
+    for name, result in (("prop-v1", prop), ("mm-pgo (1000 it.)", mm)):
+        print(
+            f"{name:>22} {result.F:>12.6g} {result.wall_s:>9.2f} {result.parallel_s:>11.2f} "
+            f"{result.iterations:>11}"
+        )
+    print(
+        f"wall-time ratio mm-pgo / prop-v1 = {mm.wall_s / prop.wall_s:.2f}; "
+        f"parallel-time ratio = {mm.parallel_s / prop.parallel_s:.2f}; "
+        f"prop-v1 actor steps: mean {prop.extras['step_ms_mean']:.2f} ms, "
+        f"consensus iterations {prop.extras['consensus_iterations']}, "
+        f"F after the actor (before consensus) {prop.extras['F_actor']:.6g}"
+    )
+
+
+def problem_f(problem) -> float:
+    from popbench import objective
+
+    return objective.objective(problem.graph, problem.graph.poses)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="60,250,1000,2500,10000")
+    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--full-steps", type=int, default=5)
+    parser.add_argument("--robots", type=int, default=7)
+    parser.add_argument("--skip-city", action="store_true")
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    actor, name = actor_for(args.checkpoint)
+    print(f"actor: {name}; torch threads: {args.threads}")
+    per_step_table(actor, [int(s) for s in args.sizes.split(",")], args.steps, args.full_steps)
+    if not args.skip_city:
+        city_comparison(args.robots)
+
+
+if __name__ == "__main__":
+    main()
