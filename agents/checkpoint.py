@@ -62,3 +62,11 @@ def load_actor(
     actor = HybridActor(dims["node"], dims["edge"], config.model).to(device)
     actor.load_state_dict(state["actor"])
     return actor.eval(), config
+
+
+def export_actor(run_checkpoint: str | Path, path: str | Path) -> Path:
+    """Write the actor-only part of a training checkpoint ("config", "dims", "actor",
+    "frames", "updates"): what `load_actor` needs, without critic and optimiser state."""
+    state = read_checkpoint(run_checkpoint)
+    keep = ("config", "dims", "actor", "frames", "updates")
+    return save_checkpoint(path, {key: state[key] for key in keep})

@@ -49,7 +49,7 @@ from popbench.errors import ValueRangeError
 from popbench.methods import Budget, Result
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "prop-v2-n7.pt"
+DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "actor-V2-n7.pt"
 INITS = ("problem", "given", "odometry", "chordal")
 PROP_V2_LM_ITERATIONS = 75
 
@@ -219,7 +219,7 @@ def solve_prop_v1(
         budget: see the module docstring (only `seconds` is used).
         init: "problem"/"given" (problem.graph.poses), "odometry" or "chordal".
         seed: seeds torch (inference is deterministic; kept for the interface).
-        checkpoint: actor checkpoint (default: agents/checkpoints/prop-v2-n7.pt).
+        checkpoint: actor checkpoint (default: agents/checkpoints/actor-V2-n7.pt).
         device: torch device of the actor ("cpu").
         consensus_iterations: ADMM iterations at most.
     """

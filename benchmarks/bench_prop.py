@@ -15,13 +15,14 @@ Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + AD
 mm-pgo's 1000 iterations (baselines.mm_pgo.solve, init="given": the same odometry start), with
 F, wall and simulated parallel time, and the wall-time ratio mm-pgo / prop-v1.
 
-The actor is the committed n = 7 checkpoint (agents/checkpoints/prop-v2-n7.pt); without it, a
+The actor is the committed n = 7 checkpoint (agents/checkpoints/actor-V2-n7.pt); without it, a
 randomly initialised actor of the cpu-small preset's size (timings do not depend on training).
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,7 +30,7 @@ import numpy as np
 import torch
 
 from agents.actor import HybridActor
-from agents.checkpoint import load_actor
+from agents.checkpoint import load_actor, save_checkpoint
 from agents.config import CPU_SMALL
 from agents.encoder import GraphBatch
 from agents.methods import DEFAULT_CHECKPOINT, run_episode, solve_prop_v1
@@ -37,11 +38,16 @@ from popbench.methods import Budget
 from popbench.synthetic import make_problem
 
 
-def actor_for(path: Path) -> tuple[HybridActor, str]:
+def actor_for(path: Path) -> tuple[HybridActor, Path]:
+    """The checkpoint's actor, or a random cpu-small one saved to a temporary checkpoint."""
     if path.is_file():
-        return load_actor(path)[0], str(path)
+        return load_actor(path)[0], path
     torch.manual_seed(0)
-    return HybridActor(6, 11, CPU_SMALL.model).eval(), "random cpu-small actor"
+    actor = HybridActor(6, 11, CPU_SMALL.model).eval()
+    path = Path(tempfile.mkdtemp()) / "random-cpu-small.pt"
+    state = {"config": CPU_SMALL.to_dict(), "dims": {"node": 6, "edge": 11}}
+    save_checkpoint(path, {**state, "actor": actor.state_dict()})
+    return actor, path
 
 
 @torch.no_grad()
@@ -83,14 +89,14 @@ def per_step_table(actor: HybridActor, sizes: list[int], steps: int, full_steps:
         )
 
 
-def city_comparison(robots: int) -> None:
+def city_comparison(robots: int, checkpoint: Path) -> None:
     from baselines import mm_pgo
     from envs import dataset_problem
 
     problem = dataset_problem("city10k", robots)
     print(f"\ncity10k, n = {robots}, odometry start (F = {problem_f(problem):.4g})")
     print(f"{'method':>22} {'F':>12} {'wall s':>9} {'parallel s':>11} {'iterations':>11}")
-    prop = solve_prop_v1(problem, Budget(), init="problem")
+    prop = solve_prop_v1(problem, Budget(), init="problem", checkpoint=checkpoint)
     mm = mm_pgo.solve(problem, Budget(1000), init="given")
     for name, result in (("prop-v1", prop), ("mm-pgo (1000 it.)", mm)):
         print(
@@ -123,11 +129,11 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    actor, name = actor_for(args.checkpoint)
-    print(f"actor: {name}; torch threads: {args.threads}")
+    actor, checkpoint = actor_for(args.checkpoint)
+    print(f"actor: {checkpoint}; torch threads: {args.threads}")
     per_step_table(actor, [int(s) for s in args.sizes.split(",")], args.steps, args.full_steps)
     if not args.skip_city:
-        city_comparison(args.robots)
+        city_comparison(args.robots, checkpoint)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,177 @@
+"""Held-out evaluation of prop-v1 (issue 5, "Done when" 1) and prop-v1/prop-v2 on Table I datasets.
+
+    POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/eval_prop.py
+    (options: --problems 100 --robots 7 --checkpoint PATH --datasets intel,mit,...
+     --skip-synthetic --skip-datasets)
+
+Part 1 — `--problems` synthetic V2 problems with n robots (60 poses each), seeds
+EVAL_SEED_BASE + k, checked disjoint from every problem seed the training streams can draw
+(SeedSequence([train_seed, element, episode]) for the committed runs' elements and far more
+episodes than they ran). For each problem, from its odometry start:
+    initial      the start itself;
+    consensus    ADMM consensus (popbench.consensus, same settings) on the untouched copies:
+                 what prop-v1 gets without its actor;
+    random       a random policy (uniform unprocessed edge, uniform δ in [−Δmax, Δmax]) for the
+                 same episode, then the same consensus;
+    prop-v1      the trained actor's episode, then the same consensus.
+Reported: mean and median of F and of the ground-truth localisation error (ATE: RMS position
+error [m] after the least-squares rigid SE(2) alignment of the estimate to the ground truth), and
+how often each beats the initial estimate.
+
+Part 2 — datasets at n robots from the odometry start: F and wall time of prop-v1 and prop-v2,
+and F of `lm` (75 iterations) from the same start for reference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from agents.checkpoint import load_actor
+from agents.methods import DEFAULT_CHECKPOINT, solve_prop_v1, solve_prop_v2
+from popbench import objective
+from popbench.consensus import admm_consensus
+from popbench.methods import Budget
+from popbench.synthetic import make_problem
+
+EVAL_SEED_BASE = 3_000_000
+TRAINING_SEEDS = (0,)  # seeds of the committed runs (agents/checkpoints/README.md)
+TRAINING_ELEMENTS = 64  # ≥ num_envs of any committed run
+TRAINING_EPISODES = 5_000  # ≥ episodes any committed run drew per element
+
+
+def training_problem_seeds() -> set[int]:
+    """Every problem seed the committed runs' samplers could have drawn (envs.core)."""
+    seeds = set()
+    for seed in TRAINING_SEEDS:
+        for element in range(TRAINING_ELEMENTS):
+            for episode in range(TRAINING_EPISODES):
+                key = [seed, element, episode]
+                seeds.add(int(np.random.SeedSequence(key).generate_state(1)[0]))
+    return seeds
+
+
+def aligned_position_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """ATE [m]: RMS position error after the least-squares rigid alignment (Umeyama, no scale)."""
+    p, q = estimate[:, :2], truth[:, :2]
+    p0, q0 = p - p.mean(0), q - q.mean(0)
+    u, _, vt = np.linalg.svd(p0.T @ q0)
+    d = np.sign(np.linalg.det(u @ vt))
+    rotation = (u @ np.diag([1.0, d]) @ vt).T
+    residual = (rotation @ p0.T).T - q0
+    return float(np.sqrt((residual**2).sum(1).mean()))
+
+
+def random_policy_copies(problem, delta_max: np.ndarray, rng: np.random.Generator) -> list:
+    """Local copies after one episode of the uniform random policy."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    n = problem.num_robots
+    core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=delta_max.tolist(), reward="F")
+    core.load([problem], [0])
+    for _ in range(int(core.tensors["num_edges"].max())):
+        mask = core.action_mask()[0].numpy()
+        scores = np.where(mask, rng.random(mask.shape), -1.0)
+        edge = torch.as_tensor(scores.argmax(-1)).view(1, n)
+        delta = torch.as_tensor(rng.uniform(-delta_max, delta_max, (1, n, 3)))
+        core.step(edge, delta)
+    return core.local_poses(0)
+
+
+def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
+    actor, _ = load_actor(checkpoint)
+    delta_max = actor.delta_max.numpy().astype(np.float64)
+    excluded = training_problem_seeds()
+    seeds = [EVAL_SEED_BASE + k for k in range(problems)]
+    assert not excluded.intersection(seeds), "evaluation seeds overlap training seeds"
+    rng = np.random.default_rng(0)
+    rows: dict[str, list[tuple[float, float]]] = {
+        "initial": [],
+        "consensus": [],
+        "random": [],
+        "prop-v1": [],
+    }
+    started = time.perf_counter()
+    for seed in seeds:
+        problem = make_problem(robots=robots, noise="V2", poses_per_robot=60, seed=seed)
+        graph, truth = problem.graph, problem.graph.ground_truth
+
+        def record(name: str, poses: np.ndarray, graph=graph, truth=truth) -> None:
+            f = objective.objective(graph, poses)
+            rows[name].append((f, aligned_position_rmse(poses, truth)))
+
+        record("initial", graph.poses)
+        record("consensus", admm_consensus(problem, problem.split()).poses)
+        record(
+            "random", admm_consensus(problem, random_policy_copies(problem, delta_max, rng)).poses
+        )
+        record("prop-v1", solve_prop_v1(problem, Budget(), checkpoint=checkpoint).poses)
+    print(
+        f"\n{problems} held-out synthetic V2 problems, n = {robots}, 60 poses/robot "
+        f"(seeds {seeds[0]}..{seeds[-1]}; {time.perf_counter() - started:.0f} s)"
+    )
+    print(
+        f"{'estimate':>10} {'F mean':>10} {'F median':>10} {'ATE mean m':>11} "
+        f"{'ATE median':>11} {'F<initial':>10} {'ATE<initial':>12}"
+    )
+    initial = np.array(rows["initial"])
+    for name, values in rows.items():
+        values = np.array(values)
+        better_f = np.mean(values[:, 0] < initial[:, 0])
+        better_ate = np.mean(values[:, 1] < initial[:, 1])
+        print(
+            f"{name:>10} {values[:, 0].mean():>10.4g} {np.median(values[:, 0]):>10.4g} "
+            f"{values[:, 1].mean():>11.4f} {np.median(values[:, 1]):>11.4f} "
+            f"{better_f:>10.0%} {better_ate:>12.0%}"
+        )
+
+
+def dataset_table(checkpoint: Path, names: list[str], robots: int) -> None:
+    from envs import dataset_problem
+    from popbench.solvers.lm import solve_graph
+
+    print(f"\nTable I datasets, n = {robots}, odometry start")
+    print(
+        f"{'dataset':>9} {'F start':>11} {'prop-v1 F':>11} {'v1 wall s':>10} {'prop-v2 F':>11} "
+        f"{'v2 wall s':>10} {'lm75 F':>11} {'flagged':>8}"
+    )
+    for name in names:
+        problem = dataset_problem(name, robots)
+        start = objective.objective(problem.graph, problem.graph.poses)
+        v1 = solve_prop_v1(problem, Budget(), checkpoint=checkpoint)
+        v2 = solve_prop_v2(problem, Budget(), checkpoint=checkpoint)
+        lm = solve_graph(problem.graph, problem.graph.poses, iterations=75)
+        print(
+            f"{name:>9} {start:>11.5g} {v1.F:>11.5g} {v1.wall_s:>10.1f} {v2.F:>11.5g} "
+            f"{v2.wall_s:>10.1f} {lm.F:>11.5g} {v1.extras['flagged_outliers']:>8}",
+            flush=True,
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--problems", type=int, default=100)
+    parser.add_argument("--robots", type=int, default=7)
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
+    parser.add_argument(
+        "--datasets", default="intel,mit,csail,m3500,m3500b,m3500c,grid1000,city10k"
+    )
+    parser.add_argument("--skip-synthetic", action="store_true")
+    parser.add_argument("--skip-datasets", action="store_true")
+    parser.add_argument("--threads", type=int, default=1)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    print(f"checkpoint: {args.checkpoint}")
+    if not args.skip_synthetic:
+        synthetic_table(args.checkpoint, args.problems, args.robots)
+    if not args.skip_datasets:
+        dataset_table(args.checkpoint, args.datasets.split(","), args.robots)
+
+
+if __name__ == "__main__":
+    main()
