@@ -4,9 +4,10 @@ What distinguishes ML-PGO from CC-PGO is (1) how the poses are split among the r
 multilevel graph partitioner (coarsen → partition → refine; the paper uses KaHIP presets, here
 METIS via :func:`popbench.partition.partition`) giving balanced parts with few cut edges, and (2)
 an accelerated RBCD whose momentum restarts **adaptively, whenever the objective increases**
-(REFERENCES §4.1), instead of every 30 iterations. Everything else (relaxation, rank 5, chordal
-initialisation, local trust-region updates, rounding) is shared with CC-PGO in
-:mod:`baselines.rbcd`.
+(REFERENCES §4.1; by more than a relative 1e-9, ``rbcd.ADAPTIVE_RESTART_TOLERANCE``, so that
+floating-point noise near convergence does not reset the momentum), instead of every 30
+iterations. Everything else (relaxation, rank 5, chordal initialisation, local trust-region
+updates, rounding) is shared with CC-PGO in :mod:`baselines.rbcd`.
 
 The problem's assignment: by default (``repartition=True``) ML-PGO re-partitions the graph with
 METIS into the problem's number of robots ``n`` (seeded by ``seed``), whatever partitioner made
