@@ -400,6 +400,8 @@ class LocalOptions:
         rtr_iterations: accepted trust-region steps per update (dpgo 3).
         tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
         gradient_tolerance: stop the update when ``‖grad f_α‖ <`` this (dpgo 1e-2).
+        preconditioner_shift: ``λ`` of the preconditioner ``Q_αα + λI`` (dpgo 0.1; on m3500
+            with 7 robots 1e-3 and 1e-5 converged no faster per round).
     """
 
     rtr_iterations: int = 1
