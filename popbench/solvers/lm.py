@@ -126,17 +126,9 @@ class _NormalEquations:
 
     def hessian_values(self, lin: objective.Linearisation) -> np.ndarray:
         """CSC values of ``H = JᵀJ`` over the free poses (renumbered), ``(nnz,)``."""
-        jt_tail = np.swapaxes(lin.jac_tail, 1, 2)
-        jt_head = np.swapaxes(lin.jac_head, 1, 2)
-        blocks = np.stack(
-            [
-                jt_tail @ lin.jac_tail,
-                jt_tail @ lin.jac_head,
-                jt_head @ lin.jac_tail,
-                jt_head @ lin.jac_head,
-            ],
-            1,
-        )  # (M, 4, 3, 3), the slot order
+        jacobians = np.stack([lin.jac_tail, lin.jac_head], 1)  # (M, 2, 3, 3): tail, head
+        # (M, 2, 2, 3, 3) blocks J_aᵀ J_b in the slot order (p,p), (p,q), (q,p), (q,q)
+        blocks = np.swapaxes(jacobians, 2, 3)[:, :, None] @ jacobians[:, None, :]
         return np.bincount(self.slots, blocks.ravel(), self.nnz + 1)[: self.nnz]
 
     def gradient(self, lin: objective.Linearisation) -> np.ndarray:
