@@ -287,24 +287,33 @@ def initial_estimate(graph: PoseGraph, init: str) -> np.ndarray:
 
 def solve(
     problem: DistributedProblem,
-    budget: Budget,
+    budget: Budget | None = None,
     init: str = "problem",
     chordal_stage: bool = False,
-    **options: float,
+    relative_tolerance: float = 1e-10,
+    gradient_tolerance: float = 1e-9,
+    **_: object,
 ) -> Result:
     """Method ``"lm"``: centralised sparse LM on the whole graph (robots are ignored).
 
     Args:
         problem: the problem; ``problem.graph.poses`` is the ``"problem"`` start.
-        budget: ``iterations`` LM steps (accepted or rejected) and an optional wall-clock cap.
+        budget: ``iterations`` LM steps (accepted or rejected; default 1000) and an optional
+            wall-clock cap.
         init: ``"problem"``, ``"odometry"`` or ``"chordal"`` (its time counts in ``wall_s``).
         chordal_stage: first minimise ``F_chordal``, then ``F`` (both share the budget).
-        options: ``relative_tolerance`` / ``gradient_tolerance`` of :func:`solve_graph`.
+        relative_tolerance, gradient_tolerance: stopping tests of :func:`solve_graph`.
+        _: options of other methods (``seed``, ...), ignored: LM is deterministic.
 
     Returns:
         :class:`~popbench.methods.Result`; ``parallel_s == wall_s`` (one process),
         ``history`` = ``F`` per LM step, ``messages == 0``.
     """
+    budget = Budget() if budget is None else budget
+    tolerances = {
+        "relative_tolerance": relative_tolerance,
+        "gradient_tolerance": gradient_tolerance,
+    }
     graph = problem.graph
     started = time.perf_counter()
     start = initial_estimate(graph, init)
@@ -316,7 +325,12 @@ def solve(
         elapsed = time.perf_counter() - started
         seconds_left = None if budget.seconds is None else budget.seconds - elapsed
         outcome = solve_graph(
-            graph, poses, steps_left, rotation_cost=rotation_cost, seconds=seconds_left, **options
+            graph,
+            poses,
+            steps_left,
+            rotation_cost=rotation_cost,
+            seconds=seconds_left,
+            **tolerances,
         )
         poses, steps_left = outcome.poses, steps_left - outcome.iterations
         histories.append(outcome.history if not histories else outcome.history[1:])
