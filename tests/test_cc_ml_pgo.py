@@ -73,6 +73,9 @@ def test_colour_classes_are_independent_sets_covering_every_robot(small_graph):
     for members in classes:
         inside = np.isin(a, members) & np.isin(b, members)
         assert np.all(a[inside] == b[inside])
+    # robots of at least `batch_below` poses update alone, the smaller ones as one batch
+    groups = rbcd.batch_groups(np.array([0, 1, 2]), np.array([5, 500, 7]), batch_below=300)
+    assert [g.tolist() for g in groups] == [[1], [0, 2]]
 
 
 @pytest.mark.parametrize("solve", [cc_pgo.solve, ml_pgo.solve])
@@ -162,3 +165,15 @@ def test_batched_class_update_equals_each_robot_updating_alone(small_graph, rng)
     moved = x.copy()
     moved[poses] = together
     assert _cost(q, moved) < _cost(q, x)
+
+
+def test_robot_by_robot_rounds_match_batched_rounds(small_graph):
+    robots = np.repeat(np.arange(6), 5)
+    runs = [
+        rbcd.solve_rbcd(
+            small_graph, robots, Budget(iterations=40), rbcd.RBCDOptions(batch_below=below)
+        )
+        for below in (0, 10**9)  # every robot alone / every class one batch
+    ]
+    np.testing.assert_allclose(runs[0].history, runs[1].history, rtol=1e-9)
+    assert runs[0].messages == runs[1].messages
