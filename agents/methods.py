@@ -289,5 +289,10 @@ def solve_prop_v2(
         history=np.concatenate([first.history, refined.history[1:]]),
         inlier_mask=first.inlier_mask,
         messages=first.messages,
-        extras={**first.extras, "F_prop_v1": first.F, "lm_iterations": int(refined.iterations)},
+        extras={
+            **first.extras,
+            "F_prop_v1": first.F,
+            "prop_v1_wall_s": first.wall_s,
+            "lm_iterations": int(refined.iterations),
+        },
     )
