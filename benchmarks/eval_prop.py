@@ -20,7 +20,9 @@ how often each beats the initial estimate.
 
 Part 2 — datasets at n robots from the odometry start: F and wall time of prop-v1 and prop-v2;
 for reference F of `lm` (75 iterations) from the same odometry start and the optimum floor F*
-(`lm` from the chordal initialisation, up to 300 iterations), with prop-v2's relative gap to F*.
+(`lm` from the chordal initialisation, up to 300 iterations), with prop-v2's relative gap to F*;
+and mm-pgo's 1000 iterations (baselines.mm_pgo, init="given": the same odometry start, n robots):
+F and wall time.
 """
 
 from __future__ import annotations
@@ -133,6 +135,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
 
 
 def dataset_table(checkpoint: Path, names: list[str], robots: int) -> None:
+    from baselines import mm_pgo
     from envs import dataset_problem
     from popbench.solvers.chordal import chordal_initialisation
     from popbench.solvers.lm import solve_graph
@@ -140,7 +143,8 @@ def dataset_table(checkpoint: Path, names: list[str], robots: int) -> None:
     print(f"\nTable I datasets, n = {robots}, odometry start")
     print(
         f"{'dataset':>9} {'F start':>11} {'prop-v1 F':>11} {'v1 wall s':>10} {'prop-v2 F':>11} "
-        f"{'v2 wall s':>10} {'lm75 F':>11} {'F*':>11} {'v2 gap':>8} {'flagged':>8}"
+        f"{'v2 wall s':>10} {'lm75 F':>11} {'F*':>11} {'v2 gap':>8} {'flagged':>8} "
+        f"{'mm-pgo F':>11} {'mm wall s':>10}"
     )
     for name in names:
         problem = dataset_problem(name, robots)
@@ -148,11 +152,12 @@ def dataset_table(checkpoint: Path, names: list[str], robots: int) -> None:
         v2 = solve_prop_v2(problem, Budget(), checkpoint=checkpoint)  # runs prop-v1 first
         lm = solve_graph(problem.graph, problem.graph.poses, iterations=75)
         optimum = solve_graph(problem.graph, chordal_initialisation(problem.graph), 300).F
+        mm = mm_pgo.solve(problem, Budget(1000), init="given")
         v1_f, v1_wall = v2.extras["F_prop_v1"], v2.extras["prop_v1_wall_s"]
         print(
             f"{name:>9} {start:>11.5g} {v1_f:>11.5g} {v1_wall:>10.1f} {v2.F:>11.5g} "
             f"{v2.wall_s:>10.1f} {lm.F:>11.5g} {optimum:>11.5g} {v2.F / optimum - 1:>8.1e} "
-            f"{v2.extras['flagged_outliers']:>8}",
+            f"{v2.extras['flagged_outliers']:>8} {mm.F:>11.5g} {mm.wall_s:>10.1f}",
             flush=True,
         )
 
