@@ -126,3 +126,24 @@ def test_outliers_tables_report_mean_and_spread():
     assert f"12 ± {np.std([10.0, 14.0], ddof=1):.4g} (3400)" in markdown
     assert "0.6 ± 0.1414 (0.69)" in markdown
     assert r"$\pm$" in reports.outliers_latex(frame)
+
+
+@pytest.mark.dataset
+def test_scalability_and_trajectory_figures(tmp_path):
+    from popbench.harness.figures import plot_learning_curves, plot_trajectories
+    from popbench.harness.scalability import ScalabilityConfig, run_scalability
+    from tests.conftest import require_dataset
+
+    require_dataset("mit")
+    config = ScalabilityConfig(
+        dataset="mit", robots=(1, 3), methods=("lm", "mm-pgo"), iterations=20, out=tmp_path / "scal"
+    )
+    frame = run_scalability(config, progress=False)
+    assert sorted(frame["robots"].unique()) == [1, 3]
+    assert (frame["gap"] > -1e-6).all()
+    assert (tmp_path / "scal" / "scalability.png").stat().st_size > 1000
+    paths = plot_trajectories("mit", 3, ("lm",), tmp_path / "traj", iterations=5)
+    assert all(path.stat().st_size > 1000 for path in paths)
+    csv = tmp_path / "metrics.csv"
+    pd.DataFrame({"frames": [0, 10], "episode_return": [-1.0, -0.5]}).to_csv(csv, index=False)
+    assert all(p.stat().st_size > 1000 for p in plot_learning_curves([csv], tmp_path / "lc"))

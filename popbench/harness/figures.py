@@ -8,16 +8,8 @@ import numpy as np
 import pandas as pd
 
 from popbench.harness import problems
+from popbench.harness.plotting import pyplot, save_figure
 from popbench.methods import Budget, get_method
-
-
-def _pyplot():  # noqa: ANN202 - matplotlib.pyplot, imported lazily (slow import)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def plot_trajectories(
@@ -29,7 +21,7 @@ def plot_trajectories(
     init: str = "odometry",
 ) -> list[Path]:
     """One panel per estimate (initial, then each method), one colour per robot; PNG + PDF."""
-    plt = _pyplot()
+    plt = pyplot()
     problem = problems.distributed_problem(dataset, robots, init)
     estimates = [(f"initial ({init})", problem.graph.poses)]
     for method in methods:
@@ -49,18 +41,13 @@ def plot_trajectories(
         ax.set_yticks([])
     fig.suptitle(f"{dataset}, n = {robots}")
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    paths = [out.with_suffix(".png"), out.with_suffix(".pdf")]
-    for path in paths:
-        fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return paths
+    return save_figure(fig, out)
 
 
 def plot_learning_curves(csv_paths: list[Path], out: Path, x: str = "frames") -> list[Path]:
     """Every numeric column of the training CSVs against ``x``, one panel per column, one line
     per file; PNG + PDF."""
-    plt = _pyplot()
+    plt = pyplot()
     frames = {path.stem: pd.read_csv(path) for path in csv_paths}
     columns = sorted(
         {c for f in frames.values() for c in f.select_dtypes("number").columns if c != x}
@@ -74,9 +61,4 @@ def plot_learning_curves(csv_paths: list[Path], out: Path, x: str = "frames") ->
         ax.set_title(column, fontsize="small")
     axes[0, 0].legend(fontsize="small")
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    paths = [out.with_suffix(".png"), out.with_suffix(".pdf")]
-    for path in paths:
-        fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return paths
+    return save_figure(fig, out)

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from popbench.harness.paper import paper_table1_cell
+from popbench.harness.plotting import pyplot, save_figure
 
 _LABELS = {
     "cc-pgo": "CC-PGO",
@@ -120,10 +121,7 @@ def table1_latex(frame: pd.DataFrame) -> str:
 def table1_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
     """Per dataset: the gap F/F*−1 (top) and parallel time (bottom) per method and team size;
     written as ``stem.png`` and ``stem.pdf``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     means = frame.groupby(["dataset", "robots", "method"], sort=False).mean(numeric_only=True)
     datasets = _ordered(frame["dataset"], ())
@@ -150,11 +148,7 @@ def table1_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
                 ax.set_title(dataset)
     axes[0, 0].legend(fontsize="small")
     fig.tight_layout()
-    paths = [stem.with_suffix(".png"), stem.with_suffix(".pdf")]
-    for path in paths:
-        fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return paths
+    return save_figure(fig, stem)
 
 
 def _mean_spread(values: pd.Series) -> str:

@@ -14,6 +14,7 @@ import pandas as pd
 from popbench.harness import table1
 from popbench.harness.cache import CellCache
 from popbench.harness.manifest import write_manifest
+from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.runner import Spec, run_cells
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
@@ -71,10 +72,7 @@ def run_scalability(config: ScalabilityConfig, *, progress: bool = True) -> pd.D
 
 def scalability_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
     """F (left) and parallel time (right) against n, one line per method; PNG and PDF."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.6))
     for method, group in frame.groupby("method", sort=False):
@@ -91,8 +89,4 @@ def scalability_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
     left.set_title(f"{frame['dataset'].iloc[0]}: objective")
     right.set_title("time")
     fig.tight_layout()
-    paths = [stem.with_suffix(".png"), stem.with_suffix(".pdf")]
-    for path in paths:
-        fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return paths
+    return save_figure(fig, stem)
