@@ -3,8 +3,14 @@
 PYTHON ?= python3
 VENV := .venv
 STAMP := $(VENV)/.installed
-# Tests and CI read the standard datasets from ../shared/datasets unless POPBENCH_DATA is set.
-export POPBENCH_DATA ?= $(abspath ../shared/datasets)
+# Tests and CI read the standard datasets from ../shared/datasets when that folder exists and
+# POPBENCH_DATA is not set; otherwise popbench uses its per-user cache (and downloads).
+SHARED_DATA := $(abspath ../shared/datasets)
+ifeq ($(origin POPBENCH_DATA), undefined)
+ifneq ($(wildcard $(SHARED_DATA)),)
+export POPBENCH_DATA := $(SHARED_DATA)
+endif
+endif
 
 .PHONY: install run test lint bench
 
