@@ -115,17 +115,8 @@ class HybridActor(nn.Module):
     def __init__(self, node_dim: int, edge_dim: int, config: ModelConfig) -> None:
         super().__init__()
         self.config = config
-        self.encoder = GraphEncoder(
-            node_dim=node_dim,
-            edge_dim=edge_dim,
-            hidden=config.hidden,
-            layers=config.layers,
-            edge_hidden=config.edge_hidden,
-            activation=config.activation,
-            gate_hidden=config.gate_hidden,
-            gate_temperature=config.gate_temperature,
-            gate_inter_loop_bias=config.gate_inter_loop_bias,
-            gate_init_logit=config.gate_init_logit,
+        self.encoder = GraphEncoder.from_config(
+            node_dim, edge_dim, config, config.hidden, config.layers
         )
         edge_dim_out = 2 * config.hidden + edge_dim
         self.memory = Memory(

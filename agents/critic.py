@@ -25,17 +25,8 @@ class CentralCritic(nn.Module):
     def __init__(self, node_dim: int, edge_dim: int, agents: int, config: ModelConfig) -> None:
         super().__init__()
         self.agents = agents
-        self.encoder = GraphEncoder(
-            node_dim=node_dim,
-            edge_dim=edge_dim,
-            hidden=config.critic_hidden,
-            layers=config.critic_layers,
-            edge_hidden=config.edge_hidden,
-            activation=config.activation,
-            gate_hidden=config.gate_hidden,
-            gate_temperature=config.gate_temperature,
-            gate_inter_loop_bias=config.gate_inter_loop_bias,
-            gate_init_logit=config.gate_init_logit,
+        self.encoder = GraphEncoder.from_config(
+            node_dim, edge_dim, config, config.critic_hidden, config.critic_layers
         )
         per_agent = config.critic_hidden + 2 * config.critic_hidden + edge_dim + 3
         self.heads = nn.ModuleList(

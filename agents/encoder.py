@@ -24,6 +24,7 @@ from tensordict import TensorDictBase
 from torch import Tensor, nn
 from torch_geometric.nn import MessagePassing
 
+from agents.config import ModelConfig
 from popbench.graph import EdgeKind
 
 KIND_COLUMNS = slice(0, 4)
@@ -265,6 +266,25 @@ class GraphEncoder(nn.Module):
             for _ in range(layers)
         )
         self.hidden = hidden
+
+    @classmethod
+    def from_config(
+        cls, node_dim: int, edge_dim: int, config: ModelConfig, hidden: int, layers: int
+    ) -> GraphEncoder:
+        """An encoder of width ``hidden`` and depth ``layers`` with ``config``'s edge-network,
+        activation and gate settings (the actor and the critic differ only in width/depth)."""
+        return cls(
+            node_dim=node_dim,
+            edge_dim=edge_dim,
+            hidden=hidden,
+            layers=layers,
+            edge_hidden=config.edge_hidden,
+            activation=config.activation,
+            gate_hidden=config.gate_hidden,
+            gate_temperature=config.gate_temperature,
+            gate_inter_loop_bias=config.gate_inter_loop_bias,
+            gate_init_logit=config.gate_init_logit,
+        )
 
     def forward(self, graphs: GraphBatch, deterministic: bool) -> Encoding:
         num_graphs, num_vertices, _ = graphs.node_features.shape
