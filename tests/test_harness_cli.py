@@ -1,5 +1,6 @@
 """End to end: ``popbench run table1`` writes its tables and resumes after being killed."""
 
+import json
 import os
 import signal
 import subprocess
@@ -47,6 +48,9 @@ def test_table1_quick_writes_csv_markdown_latex_and_figure(tmp_path, mit):
     assert (frame["gap"] > -1e-6).all()  # the optimum is a floor on every row
     assert frame["paper_F"].notna().all()
     assert "Prop-V2" in (tmp_path / "table1.md").read_text()
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["command"].startswith("popbench run table1")
+    assert manifest["wall_s"] > 0 and manifest["hardware"]["cores"] >= 1
 
 
 def test_killed_run_recomputes_no_finished_cell(tmp_path, mit):

@@ -57,13 +57,17 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-def write_manifest(folder: str | Path, command: list[str] | None = None) -> Path:
-    """Write ``manifest.json`` into ``folder`` and return its path."""
+def write_manifest(
+    folder: str | Path, command: list[str] | None = None, wall_s: float | None = None
+) -> Path:
+    """Write ``manifest.json`` into ``folder`` and return its path; ``wall_s`` is the time of
+    the invocation that wrote it (cells reused from the cache cost nothing)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     manifest = {
         "command": " ".join(command if command is not None else ["popbench", *sys.argv[1:]]),
         "written": datetime.now(UTC).isoformat(timespec="seconds"),
+        "wall_s": None if wall_s is None else round(wall_s, 1),
         "git_commit": _git_commit(),
         "python": platform.python_version(),
         "packages": {name: _version(name) for name in _PACKAGES},

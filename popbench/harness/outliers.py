@@ -9,6 +9,7 @@ then made from the *corrupted* measurements, as a real system would. Each method
 from __future__ import annotations
 
 import dataclasses
+import time
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +112,7 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
 
 def run_outliers(config: OutliersConfig, *, progress: bool = True) -> pd.DataFrame:
     """Compute (or reuse) every cell; write ``outliers.csv``, ``.md``, ``.tex`` and the manifest."""
+    started = time.perf_counter()
     rows = run_cells(
         cell_specs(config), compute_cell, CellCache(config.out / "cells"), progress=progress
     )
@@ -125,5 +127,5 @@ def run_outliers(config: OutliersConfig, *, progress: bool = True) -> pd.DataFra
     frame.to_csv(config.out / "outliers.csv", index=False, float_format="%.10g")
     (config.out / "outliers.md").write_text(reports.outliers_markdown(frame))
     (config.out / "outliers.tex").write_text(reports.outliers_latex(frame))
-    write_manifest(config.out)
+    write_manifest(config.out, wall_s=time.perf_counter() - started)
     return frame

@@ -7,6 +7,7 @@ n = 70). Cells are Table I cells (same problem construction, same measurements).
 from __future__ import annotations
 
 import dataclasses
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -54,6 +55,7 @@ def cell_specs(config: ScalabilityConfig) -> list[Spec]:
 
 def run_scalability(config: ScalabilityConfig, *, progress: bool = True) -> pd.DataFrame:
     """Compute (or reuse) every cell; write ``scalability.csv``, ``scalability.png``/``.pdf``."""
+    started = time.perf_counter()
     cache = CellCache(config.out / "cells")
     optimum = run_cells(
         [table1.optimum_spec(config.dataset)], table1.compute_optimum, cache, progress=progress
@@ -66,7 +68,7 @@ def run_scalability(config: ScalabilityConfig, *, progress: bool = True) -> pd.D
     config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "scalability.csv", index=False, float_format="%.10g")
     scalability_figure(frame, config.out / "scalability")
-    write_manifest(config.out)
+    write_manifest(config.out, wall_s=time.perf_counter() - started)
     return frame
 
 
