@@ -239,9 +239,7 @@ def solve_prop_v1(
     n = problem.num_robots
     return Result(
         poses=consensus.poses,
-        F=costs.F,
-        F_chordal=costs.F_chordal,
-        chi2=costs.chi2,
+        **costs._asdict(),  # F, F_chordal, chi2
         wall_s=time.perf_counter() - started,
         parallel_s=(episode.setup_s + float(episode.step_s.sum())) / n + consensus.parallel_s,
         iterations=int(episode.step_s.size),
@@ -280,9 +278,7 @@ def solve_prop_v2(
     costs = objective.evaluate(problem.graph, refined.poses)
     return Result(
         poses=refined.poses,
-        F=costs.F,
-        F_chordal=costs.F_chordal,
-        chi2=costs.chi2,
+        **costs._asdict(),  # F, F_chordal, chi2
         wall_s=first.wall_s + lm_s,
         parallel_s=first.parallel_s + lm_s,
         iterations=first.iterations + int(refined.iterations),

@@ -760,9 +760,7 @@ def solve(
             )
     return Result(
         poses=poses,
-        F=costs.F,
-        F_chordal=costs.F_chordal,
-        chi2=costs.chi2,
+        **costs._asdict(),  # F, F_chordal, chi2
         wall_s=time.perf_counter() - start,
         parallel_s=parallel_s,
         iterations=iterations,

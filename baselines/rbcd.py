@@ -831,9 +831,7 @@ def solve_rbcd(
         extras["certificate_min_eig"] = certificate_min_eigenvalue(q, run.x)
     return Result(
         poses=poses,
-        F=costs.F,
-        F_chordal=costs.F_chordal,
-        chi2=costs.chi2,
+        **costs._asdict(),  # F, F_chordal, chi2
         wall_s=wall_s,
         parallel_s=(initialised - start) + setup_s / num_robots + run.parallel_s,
         iterations=run.iterations,

@@ -344,9 +344,7 @@ def solve(
     costs = objective.evaluate(graph, poses)
     return Result(
         poses=poses,
-        F=costs.F,
-        F_chordal=costs.F_chordal,
-        chi2=costs.chi2,
+        **costs._asdict(),  # F, F_chordal, chi2
         wall_s=wall_s,
         parallel_s=wall_s,
         iterations=history.size - 1,
