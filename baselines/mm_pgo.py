@@ -27,10 +27,10 @@ robot takes one Gauss–Newton step on (1) and recovers its translations in clos
 
 1. Rotations: ``δ = −H_α⁻¹ g_α``, ``g_α`` the gradient of (1) at the base point (= ``∇_α F``) in
    body-frame increments (``t_i ← t_i + R_i a_i``, ``θ_i ← θ_i + b_i``), ``H_α`` the Gauss–Newton
-   Hessian of (1) — intra edges at the current geometry, inter terms (quadratic in linear
-   coordinates) exact — refactorised every ``hessian_interval`` (10) iterations
-   (``hessian_interval=0``: once, at zero residual, i.e. from the measurements only). Then
-   ``θ_i ← θ_i + b_i`` (the exact retraction onto SO(2)).
+   Hessian of (1) — intra edges at a recent geometry, inter terms (quadratic in linear
+   coordinates) exact — factorised at the start and refactorised when its geometry has
+   drifted (below; ``hessian_interval=0``: once, at zero residual, i.e. from the measurements
+   only). Then ``θ_i ← θ_i + b_i`` (the exact retraction onto SO(2)).
 2. Translations: the exact minimiser of (1) over the robot's translations for the new rotations,
    a weighted-Laplacian system ``L_α t = b`` (intra ``τ`` Laplacian + ``2τ`` of each inter edge on
    the diagonal), constant and factorised once (MM-PGO's ``recover_translations``).
@@ -44,6 +44,22 @@ reproduces the chordal relaxation every iteration); several inner Gauss–Newton
 iteration did not speed up the outer MM; a Hessian fixed at zero residual made the accelerated
 scheme diverge on MITb, whose chordal initialisation is 44 % above the optimum. The gauge pose
 (the first vertex of robot 0) is held fixed.
+
+*Hessian refresh.* ``H`` depends on the iterate only through each intra edge's lever
+``J R_pᵀ(t_q − t_p)`` and relative rotation ``R(θ_q − θ_p)``, i.e. through the translation
+residual's Jacobian ``J_e = [−I, −lever | R(φ), 0]``. Every ``hessian_interval`` (10) iterations
+the largest relative change ``‖J_e − J_e⁰‖_F / ‖J_e⁰‖_F`` since the last factorisation is
+measured (O(M), ≈ 1/10 of an iteration) and ``H`` is refactorised when it exceeds
+``hessian_tolerance`` (0.02); ``hessian_tolerance=0`` refactorises every ``hessian_interval``
+iterations (the former rule). Measured (1000 iterations, n = 7 unless stated): from the chordal
+start the geometry barely moves, so the factorisations drop from 100 to 1–5 with the same final
+F (m3500 193.9554, city10k 638.6643, MITb n = 3 / 7 / 35 61.1541 / 61.1739 / 61.3114, each
+identical to 4 decimals with ``hessian_tolerance=0``) — the factorisation was ≈ 40 % of the run;
+from odometry the geometry keeps moving and ``H`` is still refactorised at nearly every check
+(m3500, city10k: 99; MITb: 46). MITb's divergent zero-residual Hessian had drift 0.24 at the
+chordal start. A looser 0.05 left the Hessian of the odometry start in place throughout on the
+30-pose test loop (``tests/test_mm_pgo.py``) and slowed the final convergence there (relative
+gap after 300 iterations 1.4e-6 against 1.0e-6 with 0, 0.01 or 0.02).
 
 **Acceleration** (AMM-PGO, REFERENCES §3.5): ``s_{k+1} = ½ + ½√(4s_k² + 1)``,
 ``γ_k = (s_k − 1)/s_{k+1}``, ``Y = Xᵏ ⊕ γ_k(Xᵏ ⊖ Xᵏ⁻¹)`` (translations linearly, headings by the
@@ -72,20 +88,27 @@ INTER_RELATIVE, INTER_LOOP; odometry keeps weight 1): IRLS weights ``w_e = ρ'(s
 unweighted chordal cost ``s_e = F_e`` multiply ``κ_e, τ_e``. They are recomputed from the
 current iterate before the first iteration and every ``weight_interval`` (20) iterations
 (static between updates: the weighted quadratic is minimised by MM; at an update each robot
-refactorises ``H_α`` and ``L_α`` and the acceleration state is reset, since the surrogated
-objective changed). ``inlier_mask``: an edge of a robust kind is an inlier when its weight at
-the final estimate is at least the weight at ``s = c`` (:func:`robust.flag_threshold`), i.e.
-when its final ``s ≤ c``; odometry is always an inlier; None for the kernel ``none``. When
-``problem.outlier_mask`` is given, ``extras`` has ``precision``/``recall`` of the flagged edges.
+refactorises ``H_α`` (at the current iterate) and ``L_α`` and the acceleration state is
+reset, since the surrogated objective changed). ``inlier_mask``: an edge of a robust kind is an
+inlier when its weight at the final estimate is at least the weight at ``s = c``
+(:func:`robust.flag_threshold`), i.e. when its final ``s ≤ c``; odometry is always an inlier;
+None for the kernel ``none``. When ``problem.outlier_mask`` is given, ``extras`` has
+``precision``/``recall`` of the flagged edges.
 
 **Batched execution** (:class:`TeamSystem`). The robots' subproblems are independent given
 ``Xᵏ``, so their Hessians / Laplacians are the diagonal blocks of one block-diagonal matrix over
 all poses (no entry couples two robots; tested): per iteration the whole team takes one
-vectorised pass over the global edge arrays, one factorisation (every ``hessian_interval``) and
+vectorised pass over the global edge arrays, one factorisation (when ``H`` is refreshed) and
 one solve, which give every robot exactly its own update. Matrices are assembled into a fixed
 CSC pattern (precomputed slots, ``np.bincount``); factorisations use cholespy's sparse Cholesky
-(measured against SuperLU on m3500 / city10k: same factorisation time, 3–4× faster solves).
-The backtracking of the safeguard is per robot (a failing robot halves only its own step).
+(measured against SuperLU on m3500 / city10k: same factorisation time, 3–4× faster solves;
+CHOLMOD chooses its own fill-reducing ordering, so pre-permuting the matrix — nested dissection,
+reverse Cuthill–McKee — changed neither). Planar quantities are complex numbers (translations
+``x + iy``, rotations ``e^{iθ}``, residuals), so a rotation of a vector is one complex
+multiply; each pose's ``cos θ, sin θ`` is computed once per iterate (:class:`PoseTable`) and
+gathered by its edges (NumPy's float64 cos / sin measured ≈ 19 ns an element here, a complex
+multiply ≈ 0.5 ns). The backtracking of the safeguard is per robot (a failing robot halves
+only its own step).
 
 **Accounting.** One *iteration* = every robot updates once (in parallel). ``wall_s`` = the whole
 run in this process (set-up, initialisation, logging). ``parallel_s`` is a **model** of the
@@ -95,7 +118,8 @@ set-up factorisations, times the slowest robot's share of the work, work_α = ow
 edges (an inter edge counts for both robots) — the sizes its vectorised pass and its sparse
 solves scale with. It ignores per-robot fixed (interpreter) overhead and communication latency.
 Initialisation and the final evaluation are not counted in ``parallel_s``. ``messages`` = Σ over
-iterations of the separator poses sent, one per (pose, neighbouring robot) pair. ``history[k]`` =
+iterations of the separator poses sent, one per (pose, neighbouring robot) pair.
+``extras["refactorisations"]`` counts the refreshes of ``H`` after the set-up. ``history[k]`` =
 ``F_chordal(X_k)`` (``history[0]`` at the start), read off the edge residuals the iteration
 computes anyway (no extra evaluation).
 """
@@ -126,86 +150,104 @@ INITS = ("problem", "given", "odometry", "chordal")
 ETA_SLOW, ETA_FAST = 5e-4, 2.5e-2
 MAX_SOFT_HITS_AVERAGE, MAX_SOFT_HITS_INCREASE = 10, 25
 BACKTRACKING_STEPS = (1.0, 0.5, 0.25, 0.125, 0.0)
+TWO_PI = 2.0 * np.pi
 REGULARISER = 1e-10  # ξ, relative to the largest diagonal entry (MM-PGO's regularizer)
-_J = np.array([[0.0, -1.0], [1.0, 0.0]])  # R(π/2)
 
 
 # ----- per-edge terms (vectorised over edges) ------------------------------------------------
 
 
-class EdgeTerms(NamedTuple):
-    """Trigonometry and residuals of edges ``p → q``, every field ``(m,)``.
+def unit(angles: np.ndarray) -> np.ndarray:
+    """``e^{iθ}`` ``(n,)`` complex of angles ``(n,)`` (rad): ``R(θ)`` as a unit complex number."""
+    rotations = np.empty(angles.shape, dtype=complex)
+    np.cos(angles, out=rotations.real)
+    np.sin(angles, out=rotations.imag)
+    return rotations
 
-    ``cos_p, sin_p, cos_q, sin_q``: of ``θ_p``, ``θ_q``; ``cos_pm, sin_pm``: of ``θ_p + θ̃``;
-    ``tx, ty``: world-frame ``t_q − t_p − R_pt̃``; ``rx, ry``: first column of ``R_q − R_pR̃``
-    (``‖R_q − R_pR̃‖²_F = 2(rx² + ry²)``).
+
+def abs2(values: np.ndarray) -> np.ndarray:
+    """``|z|²`` ``(n,)`` of complex ``values`` ``(n,)``."""
+    return values.real * values.real + values.imag * values.imag
+
+
+class EdgeTerms(NamedTuple):
+    """Rotations and residuals of edges ``p → q`` as complex numbers (``x + iy``; a rotation
+    ``R(θ)`` as ``e^{iθ}``), every field ``(m,)`` complex.
+
+    ``rot_p, rot_q``: ``R_p, R_q``; ``rot_pm``: ``R_pR̃``; ``t``: the world-frame translation
+    residual ``t_q − t_p − R_pt̃``; ``r``: the first column of ``R_q − R_pR̃``
+    (``‖R_q − R_pR̃‖²_F = 2|r|²``).
     """
 
-    cos_p: np.ndarray
-    sin_p: np.ndarray
-    cos_q: np.ndarray
-    sin_q: np.ndarray
-    cos_pm: np.ndarray
-    sin_pm: np.ndarray
-    tx: np.ndarray
-    ty: np.ndarray
-    rx: np.ndarray
-    ry: np.ndarray
+    rot_p: np.ndarray
+    rot_q: np.ndarray
+    rot_pm: np.ndarray
+    t: np.ndarray
+    r: np.ndarray
 
 
 class EdgeData(NamedTuple):
-    """Constants of ``m`` edges: endpoint rows into a pose array, measurement and weights."""
+    """Constants of ``m`` edges: endpoint rows into a pose array, measurement (complex)."""
 
     tails: np.ndarray
     heads: np.ndarray
-    mx: np.ndarray  # t̃ [m]
-    my: np.ndarray
-    cos_m: np.ndarray  # cos θ̃, sin θ̃
-    sin_m: np.ndarray
+    t_m: np.ndarray  # t̃ [m]
+    rot_m: np.ndarray  # R̃ = e^{iθ̃}
 
 
 def edge_data(tails: np.ndarray, heads: np.ndarray, measurements: np.ndarray) -> EdgeData:
     """:class:`EdgeData` of edges whose endpoints are rows ``tails``/``heads`` of a pose array."""
     return EdgeData(
-        tails,
-        heads,
-        measurements[:, 0].copy(),
-        measurements[:, 1].copy(),
-        np.cos(measurements[:, 2]),
-        np.sin(measurements[:, 2]),
+        tails, heads, measurements[:, 0] + 1j * measurements[:, 1], unit(measurements[:, 2])
     )
+
+
+class PoseTable(NamedTuple):
+    """Poses as contiguous ``(N,)`` columns: ``headings`` (rad), translations ``z = x + iy``
+    and rotations ``u = e^{iθ}`` (each pose's trigonometry computed once, shared by its
+    edges)."""
+
+    headings: np.ndarray
+    z: np.ndarray
+    u: np.ndarray
+
+    @property
+    def poses(self) -> np.ndarray:
+        """The poses ``(N, 3)``."""
+        return np.column_stack([self.z.real, self.z.imag, self.headings])
+
+
+def pose_table(poses: np.ndarray | PoseTable) -> PoseTable:
+    """The :class:`PoseTable` of poses ``(N, 3)`` (a table is returned as it is)."""
+    if isinstance(poses, PoseTable):
+        return poses
+    headings = poses[:, 2].copy()
+    return PoseTable(headings, poses[:, 0] + 1j * poses[:, 1], unit(headings))
 
 
 def edge_terms(
-    poses: np.ndarray, edges: EdgeData, head_poses: np.ndarray | None = None
+    poses: np.ndarray | PoseTable, edges: EdgeData, head_poses: np.ndarray | PoseTable | None = None
 ) -> EdgeTerms:
     """:class:`EdgeTerms` of ``edges`` with tails at rows of ``poses`` ``(·, 3)`` and heads at
-    rows of ``head_poses`` (default ``poses``)."""
-    head_poses = poses if head_poses is None else head_poses
-    cos_p, sin_p = np.cos(poses[edges.tails, 2]), np.sin(poses[edges.tails, 2])
-    cos_q, sin_q = np.cos(head_poses[edges.heads, 2]), np.sin(head_poses[edges.heads, 2])
-    delta = head_poses[edges.heads, :2] - poses[edges.tails, :2]
-    tx = delta[:, 0] - (cos_p * edges.mx - sin_p * edges.my)
-    ty = delta[:, 1] - (sin_p * edges.mx + cos_p * edges.my)
-    cos_pm = cos_p * edges.cos_m - sin_p * edges.sin_m
-    sin_pm = sin_p * edges.cos_m + cos_p * edges.sin_m
-    return EdgeTerms(
-        cos_p, sin_p, cos_q, sin_q, cos_pm, sin_pm, tx, ty, cos_q - cos_pm, sin_q - sin_pm
-    )
+    rows of ``head_poses`` (default ``poses``); either may be a :class:`PoseTable`."""
+    tail_table = pose_table(poses)
+    head_table = tail_table if head_poses is None else pose_table(head_poses)
+    rot_p, rot_q = tail_table.u[edges.tails], head_table.u[edges.heads]
+    rot_pm = rot_p * edges.rot_m
+    t = head_table.z[edges.heads] - tail_table.z[edges.tails] - rot_p * edges.t_m
+    return EdgeTerms(rot_p, rot_q, rot_pm, t, rot_q - rot_pm)
 
 
 def edge_costs(terms: EdgeTerms, kappa: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """``F_e = τ‖r_t‖² + κ‖R_q − R_pR̃‖²_F``, ``(m,)``."""
-    return tau * (terms.tx**2 + terms.ty**2) + 2.0 * kappa * (terms.rx**2 + terms.ry**2)
+    return tau * abs2(terms.t) + 2.0 * kappa * abs2(terms.r)
 
 
 def shifted_costs(
     terms: EdgeTerms, base: EdgeTerms, kappa: np.ndarray, tau: np.ndarray
 ) -> np.ndarray:
     """``2‖r_e(terms) − ½ r_e(base)‖²_W``, ``(m,)``: an inter edge's term of (1)."""
-    sx, sy = terms.tx - 0.5 * base.tx, terms.ty - 0.5 * base.ty
-    ux, uy = terms.rx - 0.5 * base.rx, terms.ry - 0.5 * base.ry
-    return 2.0 * tau * (sx * sx + sy * sy) + 4.0 * kappa * (ux * ux + uy * uy)
+    return 2.0 * tau * abs2(terms.t - 0.5 * base.t) + 4.0 * kappa * abs2(terms.r - 0.5 * base.r)
 
 
 def select(terms: EdgeTerms, edges: np.ndarray) -> EdgeTerms:
@@ -215,48 +257,58 @@ def select(terms: EdgeTerms, edges: np.ndarray) -> EdgeTerms:
 
 def body_gradients(
     terms: EdgeTerms, edges: EdgeData, kappa: np.ndarray, tau: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Gradients of ``F_e`` with respect to body-frame increments ``(a, b)`` of the tail and the
-    head (``t ← t + R a``, ``θ ← θ + b``), each ``(m, 3)``.
+) -> np.ndarray:
+    """Gradients of ``F_e`` with respect to body-frame increments ``(a, b)`` of the tail (rows
+    ``:m``) and of the head (rows ``m:``) (``t ← t + R a``, ``θ ← θ + b``), ``(2m, 3)``.
 
-    With ``r = R_pᵀ(t_q − t_p) − t̃``: ``∂r/∂a_p = −I``, ``∂r/∂b_p = −J(r + t̃)``,
-    ``∂r/∂a_q = R(θ_q − θ_p)``; the rotation term ``4κ(1 − cos r_θ)`` has derivative
-    ``∓4κ sin r_θ`` (``⟨J(r + t̃), r⟩ = ⟨Jt̃, r⟩``).
+    With ``r = R_pᵀ(t_q − t_p) − t̃ = R_pᵀ w`` (``w`` the world residual): ``∂r/∂a_p = −I``,
+    ``∂r/∂b_p = −J(r + t̃)``, ``∂r/∂a_q = R_pᵀR_q`` (so ``∂F/∂a_q = 2τR_qᵀw``); the rotation term
+    ``4κ(1 − cos r_θ)`` has derivative ``∓4κ sin r_θ`` (``⟨J(r + t̃), r⟩ = ⟨Jt̃, r⟩ =
+    Im(conj(t̃) r)`` in complex form).
     """
-    bx = terms.cos_p * terms.tx + terms.sin_p * terms.ty  # r = R_pᵀ (world residual)
-    by = terms.cos_p * terms.ty - terms.sin_p * terms.tx
-    rotation_term = 4.0 * kappa * (terms.sin_q * terms.cos_pm - terms.cos_q * terms.sin_pm)
+    body = terms.rot_p.conj() * terms.t  # r = R_pᵀw
+    head = terms.rot_q.conj() * terms.t  # R_qᵀw
+    rotation_term = 4.0 * kappa * (terms.rot_q * terms.rot_pm.conj()).imag
     two_tau = 2.0 * tau
-    cos_d = terms.cos_p * terms.cos_q + terms.sin_p * terms.sin_q  # R(θ_q − θ_p)
-    sin_d = terms.cos_p * terms.sin_q - terms.sin_p * terms.cos_q
-    g_tail = np.empty((bx.size, 3))
-    g_tail[:, 0] = -two_tau * bx
-    g_tail[:, 1] = -two_tau * by
-    g_tail[:, 2] = -two_tau * (edges.mx * by - edges.my * bx) - rotation_term
-    g_head = np.empty((bx.size, 3))
-    g_head[:, 0] = two_tau * (cos_d * bx + sin_d * by)
-    g_head[:, 1] = two_tau * (cos_d * by - sin_d * bx)
-    g_head[:, 2] = rotation_term
-    return g_tail, g_head
+    m = body.size
+    gradients = np.empty((2 * m, 3))  # filled column by column (contiguous sources)
+    np.multiply(body.real, -two_tau, out=gradients[:m, 0])
+    np.multiply(body.imag, -two_tau, out=gradients[:m, 1])
+    gradients[:m, 2] = -two_tau * (edges.t_m.conj() * body).imag - rotation_term
+    np.multiply(head.real, two_tau, out=gradients[m:, 0])
+    np.multiply(head.imag, two_tau, out=gradients[m:, 1])
+    gradients[m:, 2] = rotation_term
+    return gradients
+
+
+class HessianGeometry(NamedTuple):
+    """The iterate-dependent inputs of the Gauss–Newton blocks of ``m`` edges (complex
+    ``(m,)``): ``lever`` = ``J R_pᵀ(t_q − t_p)``; ``relative`` = ``R(θ_q − θ_p)``."""
+
+    lever: np.ndarray
+    relative: np.ndarray
 
 
 def gauss_newton_blocks(
-    lever: np.ndarray, relative_heading: np.ndarray, kappa: np.ndarray, tau: np.ndarray
+    geometry: HessianGeometry, kappa: np.ndarray, tau: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gauss–Newton Hessian blocks of ``F_e`` in body-frame increments,
     ``(tail-tail, tail-head, head-head)``, each ``(m, 3, 3)``.
 
-    ``∂r_t = [−I, −lever | R(relative_heading), 0]`` with ``r_t = R_pᵀ(t_q − t_p) − t̃``,
-    ``lever = J R_pᵀ(t_q − t_p)`` ``(m, 2)``; ``∂r_θ = [0, −1 | 0, 1]``;
-    ``H = 2τ J_tᵀJ_t + 4κ J_θᵀJ_θ`` (``4κ(1 − cos r) ≈ 2κ r²``). At zero residual
-    ``lever = Jt̃`` and ``relative_heading = θ̃``: the blocks depend on the measurements only.
+    ``∂r_t = [−I, −lever | R(φ), 0]`` with ``r_t = R_pᵀ(t_q − t_p) − t̃``, ``φ = θ_q − θ_p``
+    (:class:`HessianGeometry`); ``∂r_θ = [0, −1 | 0, 1]``; ``H = 2τ J_tᵀJ_t + 4κ J_θᵀJ_θ``
+    (``4κ(1 − cos r) ≈ 2κ r²``). At zero residual ``lever = Jt̃`` and ``φ = θ̃``: the blocks
+    depend on the measurements only.
     """
+    lever, relative = geometry.lever, geometry.relative
     m = lever.shape[0]
     jac_tail = np.zeros((m, 2, 3))
     jac_tail[:, :, :2] = -np.eye(2)
-    jac_tail[:, :, 2] = -lever
+    jac_tail[:, 0, 2], jac_tail[:, 1, 2] = -lever.real, -lever.imag
     jac_head = np.zeros((m, 2, 3))
-    jac_head[:, :, :2] = se2.rotation(relative_heading)
+    jac_head[:, 0, 0] = jac_head[:, 1, 1] = relative.real
+    jac_head[:, 1, 0] = relative.imag
+    jac_head[:, 0, 1] = -relative.imag
     two_tau = 2.0 * tau[:, None, None]
     e_theta = np.zeros((3, 3))
     e_theta[2, 2] = 1.0
@@ -267,12 +319,32 @@ def gauss_newton_blocks(
     return tail_tail, tail_head, head_head
 
 
-def extrapolate(current: np.ndarray, previous: np.ndarray, gamma: float) -> np.ndarray:
-    """Nesterov extrapolation ``X + γ(X ⊖ X_prev)`` of poses ``(m, 3)``: translations linearly,
-    headings by the wrapped difference."""
-    difference = current - previous
-    difference[:, 2] = se2.wrap(difference[:, 2])
-    return current + gamma * difference
+def jacobian_drift(geometry: HessianGeometry, reference: HessianGeometry) -> np.ndarray:
+    """Relative change ``‖J_e − J_e⁰‖_F / ‖J_e⁰‖_F`` ``(m,)`` of the translation residual's
+    Jacobian ``J_e = [−I, −lever | R(φ), 0]`` between ``reference`` and ``geometry``
+    (``‖J_e⁰‖²_F = 4 + |lever⁰|²``, ``‖R(φ) − R(φ⁰)‖²_F = 2|e^{iφ} − e^{iφ⁰}|²``)."""
+    change = abs2(geometry.lever - reference.lever) + 2.0 * abs2(
+        geometry.relative - reference.relative
+    )
+    return np.sqrt(change / (4.0 + abs2(reference.lever)))
+
+
+def extrapolate(current: PoseTable, previous: PoseTable, gamma: float) -> PoseTable:
+    """Nesterov extrapolation ``X + γ(X ⊖ X_prev)``: translations linearly, headings by the
+    difference wrapped to ``[−π, π]``."""
+    difference = current.headings - previous.headings
+    difference -= TWO_PI * np.rint(difference / TWO_PI)
+    headings = current.headings + gamma * difference
+    return PoseTable(headings, current.z + gamma * (current.z - previous.z), unit(headings))
+
+
+class Update(NamedTuple):
+    """A team update: the new poses, their edge terms and edge costs ``(M,)`` (at the
+    current, robust-weighted, weights)."""
+
+    poses: PoseTable
+    terms: EdgeTerms
+    costs: np.ndarray
 
 
 # ----- acceleration state --------------------------------------------------------------------
@@ -417,9 +489,8 @@ class TeamSystem:
             e.tails[self.inter], e.heads[self.inter], graph.measurements[self.inter]
         )
         self.factor = np.where(self.inter, 2.0, 1.0)  # (1): own-end blocks ×2 on inter edges
-        self.shift = np.where(self.inter, 0.5, 0.0)  # (1): ½ r_e(base) on inter edges
-        self.lever_at_zero = graph.measurements[:, :2] @ _J.T  # J t̃
-        self.heading_at_zero = graph.measurements[:, 2].copy()
+        self.inter_index = np.flatnonzero(self.inter)
+        self.geometry_at_zero = HessianGeometry(1j * e.t_m, e.rot_m)  # J t̃, R̃
         self.anchor = anchor
         m = e.tails.size
         # Sum of per-edge [tail contributions; head contributions] onto the poses.
@@ -468,12 +539,15 @@ class TeamSystem:
 
     # -- weights and factorisations --
 
-    def set_weights(self, kappa: np.ndarray, tau: np.ndarray) -> None:
-        """Set the (robust-weighted) edge weights ``(M,)``; factorise ``H`` (at zero residual)
-        and the translation Laplacian ``L`` (normal equations of (1) in the translations)."""
+    def set_weights(
+        self, kappa: np.ndarray, tau: np.ndarray, terms: EdgeTerms | None = None
+    ) -> None:
+        """Set the (robust-weighted) edge weights ``(M,)``; factorise ``H`` (at the geometry of
+        ``terms``, default zero residual) and the translation Laplacian ``L`` (normal equations
+        of (1) in the translations)."""
         self.kappa, self.tau = kappa, tau
-        self.factorise_hessian(None)
-        weight = self.factor * tau
+        self.factorise_hessian(terms)
+        self.translation_weight = weight = self.factor * tau
         intra = weight[self.intra]
         values = np.concatenate([weight, weight, -intra, -intra])
         self.translation = CholeskyFactor(assemble(self.translation_pattern, values))
@@ -482,24 +556,31 @@ class TeamSystem:
         np.add.at(self.anchor_coupling, e.heads[self.anchor_tail], weight[self.anchor_tail])
         np.add.at(self.anchor_coupling, e.tails[self.anchor_head], weight[self.anchor_head])
 
+    def geometry(self, terms: EdgeTerms | None) -> HessianGeometry:
+        """The Gauss–Newton geometry of every edge: intra edges at ``terms`` (at zero residual
+        for None), inter edges always at zero residual (their terms of (1) are quadratic in
+        linear coordinates)."""
+        if terms is None:
+            return self.geometry_at_zero
+        e, intra, zero = self.edges, self.intra, self.geometry_at_zero
+        # J R_pᵀ(t_q − t_p) = J(R_pᵀw + t̃) and R(θ_q − θ_p) = R_pᵀR_q on intra edges.
+        lever = 1j * (terms.rot_p.conj() * terms.t + e.t_m)
+        relative = terms.rot_p.conj() * terms.rot_q
+        return HessianGeometry(
+            np.where(intra, lever, zero.lever), np.where(intra, relative, zero.relative)
+        )
+
+    def hessian_drift(self, terms: EdgeTerms) -> float:
+        """The largest :func:`jacobian_drift` over the edges between the geometry ``H`` was
+        factorised at and that of ``terms``."""
+        return float(jacobian_drift(self.geometry(terms), self.hessian_geometry).max())
+
     def factorise_hessian(self, terms: EdgeTerms | None) -> None:
-        """Factorise ``H = ⊕_α H_α``: intra edges at zero residual (``terms=None``) or at the
-        geometry of ``terms``; inter terms (quadratic in linear coordinates, own-end block ×2)
-        never depend on the iterate."""
-        e, intra = self.edges, self.intra
-        lever, heading = self.lever_at_zero, self.heading_at_zero
-        if terms is not None:
-            # J R_pᵀ(t_q − t_p) = J(r + t̃) and θ_q − θ_p on intra edges.
-            bx = terms.cos_p * terms.tx + terms.sin_p * terms.ty + e.mx
-            by = terms.cos_p * terms.ty - terms.sin_p * terms.tx + e.my
-            lever = np.where(intra[:, None], np.column_stack([-by, bx]), lever)
-            relative = np.arctan2(
-                terms.cos_p * terms.sin_q - terms.sin_p * terms.cos_q,
-                terms.cos_p * terms.cos_q + terms.sin_p * terms.sin_q,
-            )
-            heading = np.where(intra, relative, heading)
-        tt, th, hh = gauss_newton_blocks(lever, heading, self.kappa, self.tau)
-        factor = self.factor[:, None, None]
+        """Factorise ``H = ⊕_α H_α`` at :meth:`geometry` of ``terms`` (own-end blocks of inter
+        edges ×2)."""
+        self.hessian_geometry = self.geometry(terms)
+        tt, th, hh = gauss_newton_blocks(self.hessian_geometry, self.kappa, self.tau)
+        factor, intra = self.factor[:, None, None], self.intra
         values = np.concatenate(
             [
                 (factor * tt).ravel(),
@@ -523,12 +604,17 @@ class TeamSystem:
         )
 
     def surrogates(
-        self, poses: np.ndarray, costs: np.ndarray, base_poses: np.ndarray, base: EdgeTerms
+        self,
+        poses: np.ndarray | PoseTable,
+        costs: np.ndarray,
+        base_poses: np.ndarray | PoseTable,
+        base: EdgeTerms,
     ) -> np.ndarray:
         """``G^α(poses | base_poses)`` of every robot ``(R,)``, eq. (1): intra edges at
         ``poses`` (edge costs ``costs`` ``(M,)``), inter edges with the robot's own end at
         ``poses`` and the neighbour's copy at ``base_poses`` (edge terms ``base``)."""
         i = self.inter_edges
+        poses, base_poses = pose_table(poses), pose_table(base_poses)
         kappa, tau = self.kappa[self.inter], self.tau[self.inter]
         base_inter = select(base, self.inter)
         own_tail = shifted_costs(edge_terms(poses, i, base_poses), base_inter, kappa, tau)
@@ -544,80 +630,76 @@ class TeamSystem:
     def rotation_step(self, terms: EdgeTerms) -> np.ndarray:
         """Heading increments ``(N,)`` of the Gauss–Newton steps ``−H_α⁻¹ ∇G^α`` at the base
         point whose edge terms are ``terms`` (``∇G^α`` there = robot α's block of ``∇F``)."""
-        g_tail, g_head = body_gradients(terms, self.edges, self.kappa, self.tau)
-        gradient = self.scatter @ np.concatenate([g_tail, g_head])
+        gradient = self.scatter @ body_gradients(terms, self.edges, self.kappa, self.tau)
         gradient[self.anchor] = 0.0
         return -self.hessian.solve(gradient.ravel())[2::3]
 
     def recover_translations(
-        self, headings: np.ndarray, base_poses: np.ndarray, base: EdgeTerms
-    ) -> np.ndarray:
-        """Poses ``(N, 3)`` with ``headings`` ``(N,)`` and every robot's translations minimising
-        its ``G^α(· | base_poses)`` (edge terms ``base``) for them; the anchor keeps its pose.
+        self, headings: np.ndarray, base_poses: np.ndarray | PoseTable, base: EdgeTerms
+    ) -> PoseTable:
+        """Poses with ``headings`` ``(N,)`` and every robot's translations minimising its
+        ``G^α(· | base_poses)`` (edge terms ``base``) for them; the anchor keeps its pose.
 
         Normal equations ``L t = b`` of ``Σ a τ‖t_q − t_p − c − βw‖²`` (``a, β`` = 1, 0 intra,
         2, ½ inter; ``c = R_pt̃``, ``w`` the base's world residual); on an inter edge the tail's
         row holds the head's copy ``t_q`` fixed, the head's row the tail's copy (its heading in
         ``c`` included): row ``p`` gets ``aτ([inter] t_q − c − βw)``, row ``q`` gets
-        ``aτ(c + βw + [inter] t_p)``.
+        ``aτ(c + βw)`` intra and ``aτ(t_p + R_pt̃ + ½w) = aτ(t_q − ½w)`` (base values) inter.
         """
-        e, inter = self.edges, self.inter
-        cos_p, sin_p = np.cos(headings[e.tails]), np.sin(headings[e.tails])
-        cx = cos_p * e.mx - sin_p * e.my + self.shift * base.tx
-        cy = sin_p * e.mx + cos_p * e.my + self.shift * base.ty
-        copy_x = base.cos_p * e.mx - base.sin_p * e.my + self.shift * base.tx
-        copy_y = base.sin_p * e.mx + base.cos_p * e.my + self.shift * base.ty
-        weight = self.factor * self.tau
-        m = e.tails.size
-        contributions = np.empty((2 * m, 2))
-        contributions[:m, 0] = weight * (inter * base_poses[e.heads, 0] - cx)
-        contributions[:m, 1] = weight * (inter * base_poses[e.heads, 1] - cy)
-        contributions[m:, 0] = weight * np.where(inter, copy_x + base_poses[e.tails, 0], cx)
-        contributions[m:, 1] = weight * np.where(inter, copy_y + base_poses[e.tails, 1], cy)
-        rhs = self.scatter @ contributions
-        anchor_translation = base_poses[self.anchor, :2]
+        e, i, base_poses = self.edges, self.inter_index, pose_table(base_poses)
+        weight = self.translation_weight
+        rotations = unit(headings)
+        offsets = rotations[e.tails] * e.t_m  # aτ(c + βw)
+        offsets[i] += 0.5 * base.t[i]
+        offsets *= weight
+        m = offsets.size
+        contributions = np.empty(2 * m, dtype=complex)
+        np.negative(offsets, out=contributions[:m])
+        contributions[m:] = offsets
+        copies = weight[i] * base_poses.z[e.heads[i]]  # aτ t_q, the head's copy (inter edges)
+        contributions[i] += copies
+        contributions[m + i] = copies - 0.5 * weight[i] * base.t[i]
+        rhs = self.scatter @ contributions.view(float).reshape(2 * m, 2)
+        anchor_z = base_poses.z[self.anchor]
+        anchor_translation = np.array([anchor_z.real, anchor_z.imag])
         rhs += self.anchor_coupling[:, None] * anchor_translation
         rhs[self.anchor] = anchor_translation
-        result = np.empty((self.num_poses, 3))
-        result[:, :2] = self.translation.solve(rhs)
-        result[:, 2] = headings
-        return result
+        translations = self.translation.solve(rhs)
+        return PoseTable(headings, translations.view(complex).ravel(), rotations)
 
-    def plain_step(
-        self, poses: np.ndarray, base: EdgeTerms, shares: np.ndarray
-    ) -> tuple[np.ndarray, EdgeTerms]:
-        """Every robot's safeguarded MM step from ``poses`` ``(N, 3)`` (edge terms ``base``,
-        robot shares of ``F`` ``shares``): the new poses and their edge terms, with
-        ``G^α(new | poses) ≤ shares[α]``; a robot whose step fails halves its own step."""
+    def plain_step(self, poses: PoseTable, base: EdgeTerms, shares: np.ndarray) -> Update:
+        """Every robot's safeguarded MM step from ``poses`` (edge terms ``base``, robot shares
+        of ``F`` ``shares``), with ``G^α(new | poses) ≤ shares[α]``; a robot whose step fails
+        halves its own step."""
         step = self.rotation_step(base)
         scale = np.ones(self.num_robots)
         accepted = np.zeros(self.num_robots, dtype=bool)
         for factor in BACKTRACKING_STEPS:
             scale[~accepted] = factor
             candidate = self.recover_translations(
-                poses[:, 2] + scale[self.robots] * step, poses, base
+                poses.headings + scale[self.robots] * step, poses, base
             )
             terms = edge_terms(candidate, self.edges)
             costs = edge_costs(terms, self.kappa, self.tau)
             accepted |= self.surrogates(candidate, costs, poses, base) <= shares
             if accepted.all():
                 break
-        return candidate, terms
+        return Update(candidate, terms, costs)
 
     def accelerated_step(
-        self, poses: np.ndarray, previous: np.ndarray, gamma: float, base: EdgeTerms
-    ) -> tuple[np.ndarray, EdgeTerms, float]:
+        self, poses: PoseTable, previous: PoseTable, gamma: float, base: EdgeTerms
+    ) -> tuple[Update, float]:
         """The node update from the extrapolation ``Y = Xᵏ ⊕ γ(Xᵏ ⊖ Xᵏ⁻¹)`` (``poses``,
-        ``previous`` ``(N, 3)``; ``base`` the edge terms of ``Xᵏ``): the candidate, its edge
-        terms and ``Σ_α G^α(candidate | Xᵏ)``."""
+        ``previous``; ``base`` the edge terms of ``Xᵏ``) and ``Σ_α G^α(candidate | Xᵏ)``."""
         extrapolated = extrapolate(poses, previous, gamma)
         at_y = edge_terms(extrapolated, self.edges)
         candidate = self.recover_translations(
-            extrapolated[:, 2] + self.rotation_step(at_y), extrapolated, at_y
+            extrapolated.headings + self.rotation_step(at_y), extrapolated, at_y
         )
         terms = edge_terms(candidate, self.edges)
         costs = edge_costs(terms, self.kappa, self.tau)
-        return candidate, terms, float(self.surrogates(candidate, costs, poses, base).sum())
+        surrogate = float(self.surrogates(candidate, costs, poses, base).sum())
+        return Update(candidate, terms, costs), surrogate
 
 
 # ----- the method ----------------------------------------------------------------------------
@@ -653,6 +735,7 @@ def solve(
     accelerated: bool = True,
     weight_interval: int = 20,
     hessian_interval: int = 10,
+    hessian_tolerance: float = 0.02,
     seed: int = 0,
     **_: object,
 ) -> Result:
@@ -667,61 +750,68 @@ def solve(
         kernel_scale: ``c`` in units of the whitened squared residual (default χ²₃ 0.99).
         accelerated: Nesterov acceleration with adaptive restart (AMM-PGO) or plain MM-PGO.
         weight_interval: iterations between robust-weight updates.
-        hessian_interval: iterations between refactorisations of ``H_α`` at the current
-            iterate; 0 keeps the zero-residual ``H_α`` throughout.
+        hessian_interval: iterations between checks of ``H_α``'s drift (refactorised at the
+            current iterate when it exceeds ``hessian_tolerance``); 0 keeps the zero-residual
+            ``H_α`` throughout.
+        hessian_tolerance: the largest relative change of an edge's Jacobian (see the module
+            docstring) tolerated before ``H_α`` is refactorised; 0: at every check.
         seed: unused (the method is deterministic); accepted for the common interface.
     """
     del seed
     start = time.perf_counter()
     budget = budget or Budget()
     robust.check_kernel(kernel)
-    if kernel_scale <= 0 or weight_interval < 1 or hessian_interval < 0:
+    if kernel_scale <= 0 or weight_interval < 1 or hessian_interval < 0 or hessian_tolerance < 0:
         raise ValueRangeError(
-            "kernel_scale, weight_interval, hessian_interval",
-            (kernel_scale, weight_interval, hessian_interval),
-            "c > 0, interval ≥ 1, interval ≥ 0",
+            "kernel_scale, weight_interval, hessian_interval, hessian_tolerance",
+            (kernel_scale, weight_interval, hessian_interval, hessian_tolerance),
+            "c > 0, interval ≥ 1, interval ≥ 0, tolerance ≥ 0",
         )
     graph = problem.graph
-    poses = initial_estimate(graph, init)
+    poses = pose_table(initial_estimate(graph, init))
     kappa, tau = objective.weights(graph.information)
     anchor = int(np.flatnonzero(graph.robots == 0)[0])
     tic = time.perf_counter()
     team = TeamSystem(graph, anchor)
-    team.set_weights(kappa, tau)
-    parallel_s = (time.perf_counter() - tic) * team.slowest_share
     terms = edge_terms(poses, team.edges)
-    previous = poses.copy()
+    at_start = terms if hessian_interval > 0 else None  # H's geometry; None: zero residual
+    team.set_weights(kappa, tau, at_start)
+    parallel_s = (time.perf_counter() - tic) * team.slowest_share
+    costs = edge_costs(terms, kappa, tau)
+    previous = poses
     history = []
     state = RestartState()
-    iterations = weight_updates = hard_restarts = soft_restarts = 0
+    iterations = weight_updates = hard_restarts = soft_restarts = refactorisations = 0
     while iterations < budget.iterations:
         if budget.seconds is not None and time.perf_counter() - start > budget.seconds:
             break
         tic = time.perf_counter()
         if kernel != "none" and iterations % weight_interval == 0:
             team.set_weights(
-                kappa * (weights := edge_weights(graph, poses, kernel, kernel_scale)), tau * weights
+                kappa * (weights := edge_weights(graph, poses.poses, kernel, kernel_scale)),
+                tau * weights,
+                terms if hessian_interval > 0 else None,
             )
             weight_updates += 1
             state = RestartState()  # the surrogated objective changed
-        costs = edge_costs(terms, team.kappa, team.tau)
+            costs = edge_costs(terms, team.kappa, team.tau)
         objective_now = float(costs.sum())  # F(Xᵏ) (robust-weighted): one scalar all-reduced
         history.append(
             objective_now if kernel == "none" else float(edge_costs(terms, kappa, tau).sum())
         )
         if hessian_interval > 0 and iterations % hessian_interval == 0:
-            team.factorise_hessian(terms)
+            if team.hessian_drift(terms) > hessian_tolerance:
+                team.factorise_hessian(terms)
+                refactorisations += 1
         s_next = 0.5 + 0.5 * np.sqrt(4.0 * state.s**2 + 1.0)
         gamma = (state.s - 1.0) / s_next if accelerated else 0.0
         state.observe(objective_now)
         restart = None
         if gamma > 0.0:
-            following, following_terms, surrogate = team.accelerated_step(
-                poses, previous, gamma, terms
-            )
+            following, surrogate = team.accelerated_step(poses, previous, gamma, terms)
             restart = state.restart(surrogate)
         if gamma <= 0.0 or restart is not None:
-            following, following_terms = team.plain_step(poses, terms, team.shares(costs))
+            following = team.plain_step(poses, terms, team.shares(costs))
         if restart == "hard":
             s_next = max(0.5 * s_next, 1.0)
             hard_restarts += 1
@@ -731,11 +821,12 @@ def solve(
             state.hits_average //= 3
             state.hits_increase = 0
         state.s = s_next
-        previous, poses, terms = poses, following, following_terms
+        previous, (poses, terms, costs) = poses, following
         parallel_s += (time.perf_counter() - tic) * team.slowest_share
         iterations += 1
 
-    poses = np.column_stack([poses[:, :2], se2.wrap(poses[:, 2])])
+    poses = poses.poses
+    poses[:, 2] = se2.wrap(poses[:, 2])
     costs = objective.evaluate(graph, poses)
     history.append(costs.F_chordal)
     extras: dict[str, object] = {
@@ -746,6 +837,7 @@ def solve(
         "hard_restarts": hard_restarts,
         "soft_restarts": soft_restarts,
         "weight_updates": weight_updates,
+        "refactorisations": refactorisations,
         "history_objective": "F_chordal",
         "parallel_model": "batched time × slowest robot's share of poses + local edges",
     }
