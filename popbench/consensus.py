@@ -14,8 +14,11 @@ it belongs to; ADMM drives the copies to a consensus value ``z_s``:
 * z-update: ``z_s ← z_s ⊕ (Σ_i Λ_s^i)⁻¹ Σ_i Λ_s^i ((x_s^i + u_s^i) ⊖ z_s)`` — the
   information-weighted mean on the tangent space at the current ``z_s`` (translations subtract,
   angles subtract and wrap);
-* x-update: ``x^i ← argmin f_i(x^i) + (ρ/2) Σ_s ‖(x_s^i ⊖ z_s) + u_s^i‖²_{Λ_s^i}`` by a few damped
-  Gauss–Newton steps (one sparse solve each); the robot owning vertex 0 keeps it fixed (gauge);
+* x-update: ``x^i ← argmin f_i(x^i) + (ρ/2) Σ_s ‖(x_s^i ⊖ z_s) + u_s^i‖²_{Λ_s^i}`` by
+  ``local_steps`` (1) damped Gauss–Newton steps (additive increments; system ``H + λ(diag H +
+  1e-9)``, λ from 1e-4; a step that does not lower the robot's x-objective is retried with
+  10λ up to 1e8, an accepted one divides λ by 10, floor 1e-9); the robot owning vertex 0 keeps
+  it fixed (gauge); robots without separator copies are not coupled and keep their poses;
 * dual update: ``u_s^i ← u_s^i + x_s^i ⊖ z_s`` (scaled form), from ``u = 0``; so even copies
   that already agree at the optimum first move apart (each robot's half-weighted local objective
   is not stationary there on its own) until the duals build up;
@@ -23,7 +26,13 @@ it belongs to; ADMM drives the copies to a consensus value ``z_s``:
   alike). The dual residual ``max_s ‖z_s^{k+1} ⊖ z_s^k‖_∞`` is recorded, not used to stop:
   consensus reconciles the robots' estimates; it is not run to global optimality (ADMM's tail is
   slow — on a 7×60 synthetic problem the dual residual still shrinks by only ~0.2 % per
-  iteration after 300 iterations); Prop-V2's LM refinement does that.
+  iteration after 300 iterations); Prop-V2's LM refinement does that. From an odometry start
+  it often does not reach agreement within the 200-iteration cap at all (7×60 held-out V2
+  problems and city10k at n = 7: final primal residual e.g. 1.4 and 1.8 on two held-out
+  problems, 0.44 on city10k), and there the output is very
+  sensitive to round-off: solving the x-update systems only to a relative residual of 1e-6
+  changed F after consensus on one held-out problem from 3066 to 10710 (measured). The
+  x-update systems are therefore solved directly (exact up to round-off).
 
 ``ρ`` is dimensionless: it scales the copies' own information, so ``ρ = 1`` makes the consensus
 penalty on a copy as stiff as the robot's own edges on that pose. Default ``ρ = 3``: of
@@ -33,6 +42,29 @@ Gauss–Newton step per x-update converged as fast as three.
 
 Messages: per iteration each non-owner copy sends ``x_s^i + u_s^i`` to the owner of ``s`` and
 receives ``z_s`` back — two pose messages per non-owner copy.
+
+Batched execution. The robots' x-updates are independent given ``z`` and ``u``, so they run
+together: the half-weighted local graphs are stacked into one disjoint *team* graph (robot by
+robot, each in ``local_vertices(r)`` order), and per Gauss–Newton step one vectorised pass over
+the team's edges gives every robot's residuals, Jacobian blocks, gradient and objective
+(``np.bincount`` by robot). The team's normal equations are block diagonal (no entry couples
+two robots; tested), assembled into a CSC pattern fixed once (per-edge 3×3 blocks scattered to
+precomputed slots), with each robot's unknowns contiguous and in a METIS nested-dissection
+order of its local graph. Each robot still pending a step gets its own block (a CSC slice)
+factorised by SuperLU in that order with diagonal pivots — on city10k at n = 7 ≈ 3× faster
+than SuperLU's default column order (measured), so each robot's damping and step acceptance
+stay its own. Measured and not kept: one factorisation of the whole block-diagonal matrix
+(SuperLU ≈ 2× the seven blocks' time, cholespy ≈ 10×), and reusing an earlier
+factorisation as the preconditioner of conjugate gradients (to a relative residual 1e-10):
+the Gauss–Newton Hessian in world-frame increments moves with every heading, so on city10k
+from the odometry start 97 % of the solves still needed a refactorisation within 3 CG
+iterations (with up to 8 and one whole-team factor: 489 refactorisations in 200
+iterations), slower than factorising directly.
+
+Accounting. ``parallel_s`` models the makespan: per ADMM iteration, the slowest robot's
+measured factorise-and-solve time plus the x-update's shared vectorised time times the largest
+robot's share of the work (local vertices + local edges). The z- and dual updates (cheap, done
+by the separators' owners) are not counted.
 """
 
 from __future__ import annotations
@@ -41,16 +73,20 @@ import dataclasses
 import time
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.linalg
+import pymetis
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
 
 from popbench import se2
-from popbench.distributed import DistributedProblem, LocalGraph
+from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
-from popbench.objective import linearise, objective
+from popbench.objective import linearise, residuals, weights
+from popbench.partition import adjacency
 
 INFORMATION_FLOOR = 1e-9  # added to every Λ_s^i so that the weighted mean is always defined
+INITIAL_DAMPING, MIN_DAMPING, MAX_DAMPING = 1e-4, 1e-9, 1e8
+_SPD_OPTIONS = {"diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -66,7 +102,8 @@ class ConsensusOutcome:
         dual_residuals: ``(iterations,)`` max consensus change ``‖z^{k+1} ⊖ z^k‖_∞``.
         converged: the primal residual fell below ``tol``.
         messages: pose messages exchanged (see the module docstring).
-        parallel_s: simulated makespan: Σ over iterations of the slowest robot's x-update [s].
+        parallel_s: simulated makespan [s] (module docstring, "Accounting").
+        factorisations: sparse factorisations of robots' x-update systems (all robots).
     """
 
     poses: np.ndarray
@@ -77,6 +114,7 @@ class ConsensusOutcome:
     converged: bool
     messages: int
     parallel_s: float
+    factorisations: int = 0
 
 
 def minus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -89,133 +127,305 @@ def plus(a: np.ndarray, delta: np.ndarray) -> np.ndarray:
     return np.concatenate([a[..., :2] + delta[..., :2], se2.wrap(a[..., 2:] + delta[..., 2:])], -1)
 
 
+# ----- the team: every robot's local graph in one disjoint graph -----------------------------
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
-class _Robot:
-    """One robot's ADMM data: its half-weighted local graph and separator copies."""
+class _Team:
+    """The robots' half-weighted local graphs stacked into one disjoint graph of ``V`` vertices
+    (robot by robot, each in ``local_vertices(r)`` order) and their separator copies.
 
-    local: LocalGraph
-    graph: PoseGraph  # inter-robot edges at half information
-    copy_rows: np.ndarray  # (c_i,) local rows that are separator copies
-    copy_ids: np.ndarray  # (c_i,) index of each copy into the global copy list
-    fixed_row: int  # local row held fixed (vertex 0) or -1
+    Attributes:
+        graph: the disjoint union: edges of robot ``r`` join rows ``offsets[r]:offsets[r+1]``;
+            inter-robot edges at half information.
+        offsets: ``(R + 1,)`` first row of each robot.
+        vertex_robot: ``(V,)`` robot of each row; ``edge_robot``: ``(M_T,)`` of each edge.
+        copy_rows: ``(C,)`` rows of the separator copies, robot by robot (the copy order).
+        copy_robot: ``(C,)``; ``separator_of``: ``(C,)`` index of each copy's separator.
+        fixed_row: the row of vertex 0 in its owner's graph (the gauge, held fixed).
+        kappa, tau: ``(M_T,)`` eq. 1 weights of the team edges.
+    """
+
+    graph: PoseGraph
+    offsets: np.ndarray
+    vertex_robot: np.ndarray
+    edge_robot: np.ndarray
+    copy_rows: np.ndarray
+    copy_robot: np.ndarray
+    separator_of: np.ndarray
+    fixed_row: int
+    kappa: np.ndarray
+    tau: np.ndarray
+
+    @property
+    def num_robots(self) -> int:
+        return self.offsets.size - 1
 
 
-def _hessian_blocks(graph: PoseGraph, poses: np.ndarray) -> tuple:
-    lin = linearise(graph, poses)
-    jt, jh = lin.jac_tail, lin.jac_head
+def _team(problem: DistributedProblem, local_poses: list[np.ndarray]) -> _Team:
+    """Stack ``problem``'s local graphs at ``local_poses`` into a :class:`_Team`."""
+    locals_ = problem.local_graphs
+    sizes = np.array([local.num_vertices for local in locals_])
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    half = np.ones(problem.graph.num_edges)
+    half[problem.inter_robot_edges] = 0.5
+    edge_ids = np.concatenate([local.edge_ids for local in locals_])
+    shift = np.concatenate(
+        [np.full(local.graph.num_edges, offsets[r]) for r, local in enumerate(locals_)]
+    )
+    graph = problem.graph
+    team = PoseGraph(
+        poses=np.concatenate(local_poses),
+        tails=np.concatenate([local.graph.tails for local in locals_]) + shift,
+        heads=np.concatenate([local.graph.heads for local in locals_]) + shift,
+        measurements=graph.measurements[edge_ids],
+        information=graph.information[edge_ids] * half[edge_ids, None, None],
+        kinds=graph.kinds[edge_ids],
+        name=f"{graph.name}/team",
+    )
+    global_ids = np.concatenate([local.global_ids for local in locals_])
+    vertex_robot = np.repeat(np.arange(sizes.size), sizes)
+    copy_rows = np.flatnonzero(np.isin(global_ids, problem.separators))
+    fixed = np.flatnonzero((global_ids == 0) & (problem.robots[global_ids] == vertex_robot))
+    kappa, tau = weights(team.information)
+    return _Team(
+        team,
+        offsets,
+        vertex_robot,
+        vertex_robot[team.tails],
+        copy_rows,
+        vertex_robot[copy_rows],
+        np.searchsorted(problem.separators, global_ids[copy_rows]),
+        int(fixed[0]),
+        kappa,
+        tau,
+    )
+
+
+def _hessian_blocks(team: _Team, poses: np.ndarray):
+    """Edge costs ``(M_T,)``, Gauss–Newton blocks ``2JᵀJ`` (tail-tail, tail-head, head-head,
+    each ``(M_T, 3, 3)``) and gradients ``2Jᵀe`` (tail, head, each ``(M_T, 3)``) of eq. 1."""
+    lin = linearise(team.graph, poses)
+    jt, jh, e = lin.jac_tail, lin.jac_head, lin.errors
     blocks = (
         2.0 * np.einsum("mki,mkj->mij", jt, jt),
         2.0 * np.einsum("mki,mkj->mij", jt, jh),
         2.0 * np.einsum("mki,mkj->mij", jh, jh),
     )
-    gradients = (
-        2.0 * np.einsum("mki,mk->mi", jt, lin.errors),
-        2.0 * np.einsum("mki,mk->mi", jh, lin.errors),
-    )
-    return lin, blocks, gradients
+    gradients = (2.0 * np.einsum("mki,mk->mi", jt, e), 2.0 * np.einsum("mki,mk->mi", jh, e))
+    return np.einsum("mk,mk->m", e, e), blocks, gradients
 
 
-def _diagonal_blocks(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
-    """``(n, 3, 3)`` Gauss–Newton Hessian diagonal blocks ``2 Σ JᵀJ`` of eq. 1."""
-    _, (tt, _, hh), _ = _hessian_blocks(graph, poses)
-    out = np.zeros((graph.num_poses, 3, 3))
-    np.add.at(out, graph.tails, tt)
-    np.add.at(out, graph.heads, hh)
-    return out
+def _edge_costs(team: _Team, poses: np.ndarray) -> np.ndarray:
+    """Per-edge eq. 1 costs ``(M_T,)`` of the team graph at ``poses`` ``(V, 3)``."""
+    r = residuals(team.graph, poses)
+    return team.tau * (r[:, 0] ** 2 + r[:, 1] ** 2) + team.kappa * r[:, 2] ** 2
 
 
-def _cost(robot: _Robot, poses: np.ndarray, target: np.ndarray, weight: np.ndarray) -> float:
-    d = minus(poses[robot.copy_rows], target)
-    return objective(robot.graph, poses) + 0.5 * float(np.einsum("ci,cij,cj->", d, weight, d))
+def _information(team: _Team, poses: np.ndarray) -> np.ndarray:
+    """``(C, 3, 3)`` copy information ``Λ_s^i``: the diagonal Gauss–Newton blocks at the copies,
+    plus ``INFORMATION_FLOOR · I``."""
+    _, (tt, _, hh), _ = _hessian_blocks(team, poses)
+    v = team.graph.num_poses
+    ends = np.concatenate([team.graph.tails, team.graph.heads])
+    blocks = np.concatenate([tt, hh]).reshape(-1, 9)
+    flat = np.stack([np.bincount(ends, blocks[:, k], v) for k in range(9)], -1)
+    return flat.reshape(v, 3, 3)[team.copy_rows] + INFORMATION_FLOOR * np.eye(3)
+
+
+# ----- the x-update's linear system -----------------------------------------------------------
+
+
+def _vertex_order(team: _Team) -> np.ndarray:
+    """``(V,)`` position of every team row but the gauge (−1): robot by robot, each robot's rows
+    in a METIS nested-dissection order of its local graph (fill-reducing)."""
+    graph = team.graph
+    position = np.full(graph.num_poses, -1, dtype=np.int64)
+    placed = 0
+    for robot in range(team.num_robots):
+        first, last = team.offsets[robot], team.offsets[robot + 1]
+        inside = team.edge_robot == robot
+        local = graph.replace(
+            poses=graph.poses[first:last],
+            tails=graph.tails[inside] - first,
+            heads=graph.heads[inside] - first,
+        )
+        order = np.arange(last - first)
+        if order.size > 2:
+            starts, neighbours = adjacency(local)
+            order, _ = pymetis.nested_dissection(
+                adjacency=pymetis.CSRAdjacency(adj_starts=starts, adjacent=neighbours)
+            )
+        order = np.asarray(order, dtype=np.int64) + first
+        order = order[order != team.fixed_row]
+        position[order] = placed + np.arange(order.size)
+        placed += order.size
+    return position
+
+
+class _TeamSystem:
+    """Fixed sparse structure of every robot's x-update system at once.
+
+    Unknowns: the additive increments of all team rows but the gauge, ``3(V − 1)``, renumbered
+    in a nested-dissection order (fill-reducing for SuperLU's natural-order factorisation). The
+    matrix is block diagonal — no edge couples two robots' rows — so one factorisation / solve
+    of it is every robot's own. Per edge the four 3×3 blocks ``(p,p), (p,q), (q,p), (q,q)`` and
+    per copy its 3×3 penalty block go to precomputed CSC slots (``np.bincount``); entries of the
+    gauge row go to one discarded slot.
+    """
+
+    def __init__(self, team: _Team) -> None:
+        graph = team.graph
+        position = _vertex_order(team)
+        size = 3 * (graph.num_poses - 1)
+        t, h, c = position[graph.tails], position[graph.heads], position[team.copy_rows]
+        block_rows = np.concatenate([t, t, h, h, c])
+        block_cols = np.concatenate([t, h, t, h, c])
+        k = np.arange(3)
+        rows = (3 * block_rows[:, None, None] + k[:, None]).repeat(3, 2).ravel()
+        cols = (3 * block_cols[:, None, None] + k[None, :]).repeat(3, 1).ravel()
+        keys = np.where((rows >= 0) & (cols >= 0), cols * size + rows, -1)  # CSC order
+        unique, slots = np.unique(keys, return_inverse=True)
+        if unique.size and unique[0] == -1:  # gauge entries -> one extra slot, discarded
+            unique = unique[1:]
+            slots = np.where(slots == 0, unique.size, slots - 1)
+        self.size, self.nnz, self.slots = size, unique.size, slots
+        self.indices = (unique % size).astype(np.int32)
+        self.indptr = np.searchsorted(unique // size, np.arange(size + 1)).astype(np.int32)
+        diagonal = np.arange(size)
+        self.diagonal_slots = np.searchsorted(unique, diagonal * size + diagonal)
+        free = position >= 0
+        self.free_dof = np.empty(size, dtype=np.int64)  # renumbered dof -> flat (V, 3) index
+        self.free_dof[(3 * position[free, None] + k).ravel()] = (
+            3 * np.flatnonzero(free)[:, None] + k
+        ).ravel()
+        self.dof_robot = team.vertex_robot[self.free_dof // 3]  # sorted: robot by robot
+        self.bounds = np.searchsorted(self.dof_robot, np.arange(team.num_robots + 1))
+        ends = np.concatenate([t, h, c])
+        self.gradient_dof = np.where(ends[:, None] >= 0, 3 * ends[:, None] + k, size).ravel()
+
+    def values(self, blocks: tuple, weight: np.ndarray) -> np.ndarray:
+        """CSC values ``(nnz,)`` of ``Σ_e 2JᵀJ + ρΛ`` from the edge blocks (tail-tail, tail-head,
+        head-head) and the copies' penalty weights ``weight`` ``(C, 3, 3)``."""
+        tt, th, hh = blocks
+        stacked = np.concatenate([tt, th, np.swapaxes(th, 1, 2), hh, weight])
+        return np.bincount(self.slots, stacked.ravel(), self.nnz + 1)[: self.nnz]
+
+    def gradient(self, g_tail: np.ndarray, g_head: np.ndarray, g_copy: np.ndarray) -> np.ndarray:
+        """The gradient ``(3(V − 1),)`` in renumbered unknowns from per-edge / per-copy terms."""
+        stacked = np.concatenate([g_tail, g_head, g_copy]).ravel()
+        return np.bincount(self.gradient_dof, stacked, self.size + 1)[: self.size]
+
+    def matrix(self, values: np.ndarray, shift: np.ndarray) -> sp.csc_matrix:
+        """The CSC matrix of ``values`` plus ``diag(shift)`` (``shift``: ``(3(V − 1),)``)."""
+        data = values.copy()
+        data[self.diagonal_slots] += shift
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
+
+    def increments(self, step: np.ndarray, num_vertices: int) -> np.ndarray:
+        """``(V, 3)`` increments from a renumbered ``step`` (zero on the gauge row)."""
+        out = np.zeros(3 * num_vertices)
+        out[self.free_dof] = step
+        return out.reshape(num_vertices, 3)
+
+
+def _solve_blocks(
+    matrix: sp.csc_matrix,
+    rhs: np.ndarray,
+    robots: np.ndarray,
+    bounds: np.ndarray,
+    seconds: np.ndarray,
+) -> np.ndarray:
+    """``matrix⁻¹ rhs`` on the diagonal blocks of ``robots`` (bool ``(R,)``), zero elsewhere.
+
+    Robot ``r``'s unknowns are the contiguous range ``bounds[r]:bounds[r + 1]`` and its block
+    is a CSC slice (no copy of the pattern); each block is factorised by SuperLU in its natural
+    (nested-dissection) order with diagonal pivots, and the time of each robot's factorisation
+    and solve is added to ``seconds`` ``(R,)`` [s].
+    """
+    x = np.zeros_like(rhs)
+    for robot in np.flatnonzero(robots):
+        tic = time.perf_counter()
+        first, last = bounds[robot], bounds[robot + 1]
+        start, stop = matrix.indptr[first], matrix.indptr[last]
+        block = sp.csc_matrix(
+            (
+                matrix.data[start:stop],
+                matrix.indices[start:stop] - first,
+                matrix.indptr[first : last + 1] - start,
+            ),
+            shape=(last - first,) * 2,
+        )
+        x[first:last] = splu(block, permc_spec="NATURAL", **_SPD_OPTIONS).solve(rhs[first:last])
+        seconds[robot] += time.perf_counter() - tic
+    return x
+
+
+# ----- ADMM ----------------------------------------------------------------------------------
+
+
+def _robot_costs(
+    team: _Team, edge_costs: np.ndarray, offsets: np.ndarray, weight: np.ndarray
+) -> np.ndarray:
+    """``(R,)`` every robot's x-update objective: its edges' eq. 1 costs (``edge_costs``
+    ``(M_T,)``) plus ``½ Σ_s dᵀ W_s d`` over its copies (``offsets`` = ``x_s ⊖ target_s``)."""
+    penalty = 0.5 * np.einsum("ci,cij,cj->c", offsets, weight, offsets)
+    r = team.num_robots
+    return np.bincount(team.edge_robot, edge_costs, r) + np.bincount(team.copy_robot, penalty, r)
 
 
 def _x_update(
-    robot: _Robot,
+    team: _Team,
+    system: _TeamSystem,
     poses: np.ndarray,
     target: np.ndarray,
     weight: np.ndarray,
+    damping: np.ndarray,
     steps: int,
-    damping: float,
-) -> tuple[np.ndarray, float]:
-    """Damped Gauss–Newton on ``f_i(x) + ½ Σ (x_s ⊖ target_s)ᵀ W_s (x_s ⊖ target_s)``.
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Damped Gauss–Newton on every robot's ``f_i(x) + ½ Σ_s (x_s ⊖ target_s)ᵀ W_s (…)`` at
+    once (``poses`` ``(V, 3)``, ``target = z − u`` and ``weight = ρΛ`` per copy ``(C, …)``).
 
-    ``target = z − u`` (so that ``x ⊖ target ≈ (x ⊖ z) + u``), ``weight = ρΛ``.
+    Per robot, a step is accepted when it does not raise the robot's objective; its damping
+    (``damping`` ``(R,)``, updated in place) is then divided by 10, else multiplied by 10 and
+    the step retried, while below ``MAX_DAMPING``; a robot with no accepted step takes no
+    further step. Robots without copies keep their poses.
+
+    Returns:
+        the new poses, each robot's factorise-and-solve time ``(R,)`` [s] and the number of
+        factorisations.
     """
-    graph = robot.graph
-    n = graph.num_poses
-    index3 = np.arange(3)
-    cost = _cost(robot, poses, target, weight)
+    robots = team.num_robots
+    seconds = np.zeros(robots)
+    factorisations = 0
+    moving = np.bincount(team.copy_robot, minlength=robots) > 0
     for _ in range(steps):
-        _, (tt, th, hh), (g_tail, g_head) = _hessian_blocks(graph, poses)
-        p3 = 3 * graph.tails[:, None] + index3  # (M, 3)
-        q3 = 3 * graph.heads[:, None] + index3
-        c3 = 3 * robot.copy_rows[:, None] + index3
-        rows = np.concatenate(
-            [np.broadcast_to(a[:, :, None], a.shape + (3,)).ravel() for a in (p3, p3, q3, q3, c3)]
-        )
-        cols = np.concatenate(
-            [
-                np.broadcast_to(b[:, None, :], b.shape[:1] + (3, 3)).ravel()
-                for b in (p3, q3, p3, q3, c3)
-            ]
-        )
-        values = np.concatenate(
-            [tt.ravel(), th.ravel(), np.swapaxes(th, 1, 2).ravel(), hh.ravel(), weight.ravel()]
-        )
-        hessian = scipy.sparse.coo_matrix((values, (rows, cols)), shape=(3 * n, 3 * n)).tocsc()
-        gradient = np.zeros(3 * n)
-        np.add.at(gradient, p3.ravel(), g_tail.ravel())
-        np.add.at(gradient, q3.ravel(), g_head.ravel())
-        d = minus(poses[robot.copy_rows], target)
-        np.add.at(gradient, c3.ravel(), np.einsum("cij,cj->ci", weight, d).ravel())
-        diagonal = hessian.diagonal()
-        free = np.ones(3 * n, dtype=bool)
-        if robot.fixed_row >= 0:
-            free[3 * robot.fixed_row : 3 * robot.fixed_row + 3] = False
-        reduced = hessian[free][:, free]
-        accepted = False
-        while damping < 1e8:
-            system = reduced + scipy.sparse.diags(damping * (diagonal[free] + 1e-9))
-            step = np.zeros(3 * n)
-            step[free] = -scipy.sparse.linalg.spsolve(system.tocsc(), gradient[free])
-            trial = plus(poses, step.reshape(n, 3))
-            trial_cost = _cost(robot, trial, target, weight)
-            if trial_cost <= cost:
-                poses, cost, accepted = trial, trial_cost, True
-                damping = max(damping / 10.0, 1e-9)
-                break
-            damping *= 10.0
-        if not accepted:
+        pending = moving & (damping < MAX_DAMPING)
+        if not pending.any():
             break
-    return poses, damping
-
-
-def _prepare(problem: DistributedProblem, local_poses: list[np.ndarray]):
-    """Robots' ADMM data, the copy → separator map and the initial copy information."""
-    half = np.ones(problem.graph.num_edges)
-    half[problem.inter_robot_edges] = 0.5
-    separators = problem.separators
-    robots, copy_separator, copy_information = [], [], []
-    offset = 0
-    for local, poses in zip(problem.local_graphs, local_poses, strict=True):
-        factor = half[local.edge_ids][:, None, None]
-        graph = local.graph.replace(information=local.graph.information * factor, poses=poses)
-        rows = np.flatnonzero(np.isin(local.global_ids, separators))
-        fixed = np.flatnonzero(local.owned_ids == 0)
-        robot = _Robot(
-            local, graph, rows, offset + np.arange(rows.size), int(fixed[0]) if fixed.size else -1
-        )
-        robots.append(robot)
-        offset += rows.size
-        copy_separator.append(np.searchsorted(separators, local.global_ids[rows]))
-        copy_information.append(_diagonal_blocks(graph, poses)[rows])
-    information = np.concatenate(copy_information) + INFORMATION_FLOOR * np.eye(3)
-    return robots, np.concatenate(copy_separator), information
-
-
-def _gather(robots: list[_Robot], local_poses: list[np.ndarray]) -> np.ndarray:
-    """All separator copies ``(C, 3)``, robot by robot."""
-    return np.concatenate([x[r.copy_rows] for r, x in zip(robots, local_poses, strict=True)])
+        costs, blocks, (g_tail, g_head) = _hessian_blocks(team, poses)
+        offsets = minus(poses[team.copy_rows], target)
+        cost = _robot_costs(team, costs, offsets, weight)
+        values = system.values(blocks, weight)
+        gradient = system.gradient(g_tail, g_head, np.einsum("cij,cj->ci", weight, offsets))
+        scale = values[system.diagonal_slots] + 1e-9
+        accepted = np.zeros(robots, dtype=bool)
+        while pending.any():
+            matrix = system.matrix(values, damping[system.dof_robot] * scale)
+            step = _solve_blocks(matrix, -gradient, pending, system.bounds, seconds)
+            factorisations += int(pending.sum())
+            trial = plus(poses, system.increments(step, team.graph.num_poses))
+            trial_offsets = minus(trial[team.copy_rows], target)
+            trial_cost = _robot_costs(team, _edge_costs(team, trial), trial_offsets, weight)
+            better = pending & (trial_cost <= cost)
+            poses = np.where(better[team.vertex_robot, None], trial, poses)
+            damping[better] = np.maximum(damping[better] / 10.0, MIN_DAMPING)
+            accepted |= better
+            pending &= ~better
+            damping[pending] *= 10.0
+            pending &= damping < MAX_DAMPING
+        moving &= accepted
+    return poses, seconds, factorisations
 
 
 def _weighted_mean(
@@ -236,6 +446,13 @@ def _pin_gauge(z: np.ndarray, copies: np.ndarray, gauge_copy: np.ndarray, separa
     """Hold a separating vertex 0 at its owner's fixed copy (the gauge)."""
     z[separator_of[gauge_copy]] = copies[gauge_copy]
     return z
+
+
+def _slowest_share(team: _Team) -> float:
+    """The largest robot's share of the team's work, work = local vertices + local edges."""
+    r = team.num_robots
+    work = np.bincount(team.vertex_robot, minlength=r) + np.bincount(team.edge_robot, minlength=r)
+    return float(work.max() / work.sum())
 
 
 def admm_consensus(
@@ -268,40 +485,38 @@ def admm_consensus(
             raise ValueRangeError(
                 f"local_poses[{local.robot}] shape", np.shape(poses), f"({local.num_vertices}, 3)"
             )
-    local_poses = [np.array(poses, dtype=np.float64) for poses in local_poses]
-    robots, separator_of, information = _prepare(problem, local_poses)
-    separators = problem.separators
-    copies = _gather(robots, local_poses)
-    owner_copy = problem.robots[separators][separator_of] == np.concatenate(
-        [np.full(r.copy_rows.size, r.local.robot) for r in robots]
-    )
+    local_poses = [np.asarray(poses, dtype=np.float64) for poses in local_poses]
+    team = _team(problem, local_poses)
+    poses = team.graph.poses.copy()
+    separator_of = team.separator_of
+    information = _information(team, poses)
+    owner_copy = problem.robots[problem.separators][separator_of] == team.copy_robot
     messages_per_iteration = 2 * int(np.count_nonzero(~owner_copy))
-
-    gauge_copy = np.concatenate(
-        [r.copy_ids[r.copy_rows == r.fixed_row] for r in robots]
-    )  # the fixed copy of vertex 0, if vertex 0 is a separator
+    gauge_copy = np.flatnonzero(team.copy_rows == team.fixed_row)
+    copies = poses[team.copy_rows]
     first_copy = np.unique(separator_of, return_index=True)[1]
     z = _weighted_mean(copies[first_copy], copies, separator_of, information)
     z = _pin_gauge(z, copies, gauge_copy, separator_of)
     u = np.zeros_like(copies)
     weight = rho * information
-    damping = [1e-4] * len(robots)
+    damping = np.full(team.num_robots, INITIAL_DAMPING)
+    system = _TeamSystem(team) if copies.size else None
+    share = _slowest_share(team)
     primal, dual = [], []
     parallel_s = 0.0
+    factorisations = 0
     converged = False
     for _ in range(iterations):
-        slowest = 0.0
-        for k, robot in enumerate(robots):
-            if robot.copy_rows.size == 0:
-                continue  # no separator: nothing couples this robot
+        if copies.size:
             start = time.perf_counter()
-            target = minus(z[separator_of[robot.copy_ids]], u[robot.copy_ids])
-            local_poses[k], damping[k] = _x_update(
-                robot, local_poses[k], target, weight[robot.copy_ids], local_steps, damping[k]
+            target = minus(z[separator_of], u)
+            poses, solve_s, count = _x_update(
+                team, system, poses, target, weight, damping, local_steps
             )
-            slowest = max(slowest, time.perf_counter() - start)
-        parallel_s += slowest
-        copies = _gather(robots, local_poses)
+            shared_s = time.perf_counter() - start - solve_s.sum()
+            parallel_s += shared_s * share + solve_s.max()
+            factorisations += count
+        copies = poses[team.copy_rows]
         z_new = _weighted_mean(z, plus(copies, u), separator_of, information)
         z_new = _pin_gauge(z_new, copies, gauge_copy, separator_of)
         disagreement = minus(copies, z_new[separator_of])
@@ -313,10 +528,11 @@ def admm_consensus(
             converged = True
             break
 
-    poses = problem.assemble(local_poses)
-    poses[separators] = z
+    local_poses = np.split(poses, team.offsets[1:-1])
+    result = problem.assemble(local_poses)
+    result[problem.separators] = z
     return ConsensusOutcome(
-        poses=poses,
+        poses=result,
         local_poses=local_poses,
         iterations=len(primal),
         primal_residuals=np.array(primal),
@@ -324,4 +540,5 @@ def admm_consensus(
         converged=converged,
         messages=messages_per_iteration * len(primal),
         parallel_s=parallel_s,
+        factorisations=factorisations,
     )

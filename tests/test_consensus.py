@@ -119,3 +119,20 @@ def test_invalid_arguments(problem_and_optimum):
         admm_consensus(problem, local_poses, rho=0.0)
     with pytest.raises(ValueRangeError, match="local_poses"):
         admm_consensus(problem, [x[:-1] for x in local_poses])
+
+
+def test_team_system_is_block_diagonal_by_robot(problem_and_optimum):
+    """The batched x-update system couples no two robots: every stored entry joins unknowns of
+    one robot, each robot's unknowns are one contiguous range, and the gauge row is absent."""
+    from popbench.consensus import _team, _TeamSystem
+
+    problem, optimum = problem_and_optimum
+    team = _team(problem, problem.split(optimum))
+    system = _TeamSystem(team)
+    columns = np.repeat(np.arange(system.size), np.diff(system.indptr))
+    robot = system.dof_robot
+    assert np.array_equal(robot[system.indices], robot[columns])
+    assert np.all(np.diff(robot) >= 0)
+    assert np.array_equal(system.bounds, np.searchsorted(robot, np.arange(problem.num_robots + 1)))
+    assert system.size == 3 * (team.graph.num_poses - 1)
+    assert team.fixed_row not in system.free_dof // 3
