@@ -603,6 +603,20 @@ class TeamSystem:
             minlength=self.num_robots,
         )
 
+    def inter_terms(
+        self, poses: np.ndarray | PoseTable, base_poses: np.ndarray | PoseTable, base: EdgeTerms
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The inter edges' terms of (1) ``(M_inter,)`` for their tails' robots and for their
+        heads' robots: the robot's own end at ``poses``, the neighbour's copy at ``base_poses``
+        (edge terms ``base``)."""
+        i, inter = self.inter_edges, self.inter_index
+        poses, base_poses = pose_table(poses), pose_table(base_poses)
+        kappa, tau = self.kappa[inter], self.tau[inter]
+        base_inter = select(base, inter)
+        own_tail = shifted_costs(edge_terms(poses, i, base_poses), base_inter, kappa, tau)
+        own_head = shifted_costs(edge_terms(base_poses, i, poses), base_inter, kappa, tau)
+        return own_tail, own_head
+
     def surrogates(
         self,
         poses: np.ndarray | PoseTable,
@@ -611,19 +625,21 @@ class TeamSystem:
         base: EdgeTerms,
     ) -> np.ndarray:
         """``G^α(poses | base_poses)`` of every robot ``(R,)``, eq. (1): intra edges at
-        ``poses`` (edge costs ``costs`` ``(M,)``), inter edges with the robot's own end at
-        ``poses`` and the neighbour's copy at ``base_poses`` (edge terms ``base``)."""
-        i = self.inter_edges
-        poses, base_poses = pose_table(poses), pose_table(base_poses)
-        kappa, tau = self.kappa[self.inter], self.tau[self.inter]
-        base_inter = select(base, self.inter)
-        own_tail = shifted_costs(edge_terms(poses, i, base_poses), base_inter, kappa, tau)
-        own_head = shifted_costs(edge_terms(base_poses, i, poses), base_inter, kappa, tau)
+        ``poses`` (edge costs ``costs`` ``(M,)``), inter edges by :meth:`inter_terms`."""
+        own_tail, own_head = self.inter_terms(poses, base_poses, base)
         return np.bincount(
             self.term_robots,
             weights=np.concatenate([costs[self.intra], own_tail, own_head]),
             minlength=self.num_robots,
         )
+
+    def surrogate_total(
+        self, poses: PoseTable, costs: np.ndarray, base_poses: PoseTable, base: EdgeTerms
+    ) -> float:
+        """``Σ_α G^α(poses | base_poses)`` (arguments as :meth:`surrogates`)."""
+        own_tail, own_head = self.inter_terms(poses, base_poses, base)
+        intra = costs.sum() - costs[self.inter_index].sum()
+        return float(intra + own_tail.sum() + own_head.sum())
 
     # -- the node update, every robot at once --
 
@@ -698,7 +714,7 @@ class TeamSystem:
         )
         terms = edge_terms(candidate, self.edges)
         costs = edge_costs(terms, self.kappa, self.tau)
-        surrogate = float(self.surrogates(candidate, costs, poses, base).sum())
+        surrogate = self.surrogate_total(candidate, costs, poses, base)
         return Update(candidate, terms, costs), surrogate
 
 

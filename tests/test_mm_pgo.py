@@ -73,6 +73,9 @@ def test_surrogates_majorise_f_and_touch_it_at_the_base(small_graph, rng):
     assert at_base == pytest.approx(team.shares(base_costs))
     assert at_base.sum() == pytest.approx(objective.chordal_objective(graph, base))
     assert at_moved.sum() >= objective.chordal_objective(graph, moved)
+    moved_table, base_table = mm_pgo.pose_table(moved), mm_pgo.pose_table(base)
+    total = team.surrogate_total(moved_table, moved_costs, base_table, base_terms)
+    assert total == pytest.approx(at_moved.sum(), rel=1e-12)
 
 
 def test_stacked_systems_are_block_diagonal_over_robots(small_graph):
