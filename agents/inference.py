@@ -33,7 +33,7 @@ import torch
 from torch import Tensor
 
 from agents.actor import HybridActor, masked_log_softmax
-from agents.encoder import INTER_LOOP_COLUMN, LOG_INFO_COLUMNS, GraphBatch
+from agents.encoder import INTER_LOOP_COLUMN, LOG_INFO_COLUMNS, GraphBatch, edge_embeddings
 
 
 class IncrementalPolicy:
@@ -93,15 +93,16 @@ class IncrementalPolicy:
         ]
         self.gates = [torch.zeros(n_edges + 1) for _ in encoder.convs]
 
+        self.memory = actor.initial_memory(g)
         first = actor.edge_head[0]
-        self.embedding_width = 2 * encoder.hidden + attr.shape[1]
+        # The edge head reads [edge embedding ‖ memory context]: the rest of its input width.
+        self.embedding_width = first.in_features - self.memory.shape[-1]
         self.head_embedding_weight = first.weight[:, : self.embedding_width]
         self.head_context_weight = first.weight[:, self.embedding_width :]
         self.embeddings = torch.zeros(g, e + 1, self.embedding_width)
         self.head_hidden = torch.zeros(g, e + 1, first.out_features)
         self.pooled_sum = torch.zeros(g, encoder.hidden)
 
-        self.memory = actor.initial_memory(g)
         self.prev_edge = torch.full((g,), e, dtype=torch.long)  # E = "none" (zero embedding)
         self.prev_delta = torch.zeros(g, 3)
         self._propagate(torch.arange(n_nodes), torch.arange(n_edges))
@@ -173,9 +174,19 @@ class IncrementalPolicy:
         final = self.h[-1]
         edges = self._edges_at(vertices)
         graph_of, slot = edges // e, edges % e
-        embedding = torch.cat(
-            [final[self.tails[edges]], final[self.heads[edges]], self.attr[edges]], -1
+        # encoder.edge_embeddings on the refreshed edges, as one graph over the flat vertex ids.
+        k = edges.numel()
+        refreshed = GraphBatch(
+            node_features=final.unsqueeze(0),
+            edge_index=torch.stack([self.tails[edges], self.heads[edges]]).unsqueeze(0),
+            edge_attr=self.attr[edges].unsqueeze(0),
+            edge_mask=torch.ones(1, k, dtype=torch.bool),
+            node_mask=torch.ones(1, final.shape[0], dtype=torch.bool),
+            residuals=self.residuals[edges].unsqueeze(0),
+            processed=torch.zeros(1, k, dtype=torch.bool),
+            action_mask=torch.ones(1, k + 1, dtype=torch.bool),
         )
+        embedding = edge_embeddings(final.unsqueeze(0), refreshed)[0, :k]
         self.embeddings[graph_of, slot] = embedding
         self.head_hidden[graph_of, slot] = embedding @ self.head_embedding_weight.T
 

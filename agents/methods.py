@@ -23,7 +23,9 @@ Result fields
     parallel_s (simulated makespan): the robots' actors run batched in one process here, so each
     step's wall time is attributed evenly, step_s / n per robot (a lower bound on a robot acting
     alone, which loses the batching), plus the setup time / n and the consensus's own parallel_s
-    (per ADMM iteration the slowest robot's x-update). prop-v2 adds LM's wall time (centralised).
+    (popbench.consensus, "Accounting": per ADMM iteration the slowest robot's factorise-and-solve
+    time plus its share of the batched vectorised pass). prop-v2 adds LM's wall time
+    (centralised). extras: actor_s (setup + steps) and consensus_s, the split of wall_s [s].
 Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
     callers pass a Budget for every method); `budget.seconds`, if given, stops the episode early.
 """
@@ -232,7 +234,9 @@ def solve_prop_v1(
         episode = run_episode(actor, problem, budget.seconds)
     graph = problem.graph
     actor_poses = problem.assemble(episode.local_poses)
+    tic = time.perf_counter()
     consensus = admm_consensus(problem, episode.local_poses, iterations=consensus_iterations)
+    consensus_s = time.perf_counter() - tic
     costs = objective.evaluate(graph, consensus.poses)
     history = episode.history.copy()
     history[-1] = costs.F
@@ -253,6 +257,7 @@ def solve_prop_v1(
             "consensus_converged": bool(consensus.converged),
             "step_ms_mean": 1e3 * float(episode.step_s.mean()) if episode.step_s.size else 0.0,
             "actor_s": episode.setup_s + float(episode.step_s.sum()),
+            "consensus_s": consensus_s,
             "flagged_outliers": int(np.count_nonzero(~episode.inlier_mask)),
         },
     )

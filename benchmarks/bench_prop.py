@@ -13,7 +13,8 @@ ratio full / incremental.
 
 Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + ADMM consensus) and
 mm-pgo's 1000 iterations (baselines.mm_pgo.solve, init="given": the same odometry start), with
-F, wall and simulated parallel time, and the wall-time ratio mm-pgo / prop-v1.
+F, wall and simulated parallel time, the wall-time ratio mm-pgo / prop-v1 and prop-v1's split of
+its wall time (actor episode / ADMM consensus).
 
 The actor is the committed n = 7 checkpoint (agents/checkpoints/actor-V2-n7.pt); without it, a
 randomly initialised actor of the cpu-small preset's size (timings do not depend on training).
@@ -106,7 +107,8 @@ def city_comparison(robots: int, checkpoint: Path) -> None:
     print(
         f"wall-time ratio mm-pgo / prop-v1 = {mm.wall_s / prop.wall_s:.2f}; "
         f"parallel-time ratio = {mm.parallel_s / prop.parallel_s:.2f}; "
-        f"prop-v1 actor steps: mean {prop.extras['step_ms_mean']:.2f} ms, "
+        f"prop-v1 split: actor {prop.extras['actor_s']:.2f} s (steps mean "
+        f"{prop.extras['step_ms_mean']:.2f} ms), consensus {prop.extras['consensus_s']:.2f} s; "
         f"consensus iterations {prop.extras['consensus_iterations']}, "
         f"F after the actor (before consensus) {prop.extras['F_actor']:.6g}"
     )
