@@ -29,7 +29,12 @@ MM-PGO where every robot updates each iteration.
 trust-region Newton steps with truncated (Steihaug–Toint) CG, preconditioned by a cached sparse
 Cholesky factor of ``Q_αα + λI`` (dpgo's preconditioner); by default one accepted step with ≤ 10
 tCG iterations (dpgo: 3 steps, ≤ 50; see :class:`LocalOptions`). The linear term ``G_α`` only
-needs the neighbours' separator poses. **Batched:** the robots of a class share no edge, so their
+needs the neighbours' separator poses, and is never formed: the update starts from the gradient
+``∇f_α(Z) = (QY)_α`` the round already has, and a candidate step ``Δ`` is judged by
+``f_α(Z + Δ) − f_α(Z) = ⟨Δ, ∇f_α(Z)⟩ + ½⟨Δ, Q_αα Δ⟩`` from one sparse product with the class's
+columns of ``Q`` (which also gives the change of the neighbours' ``QX``), so a robot update costs
+its tCG iterations (one Hessian product and one preconditioner solve each, none after the last)
+plus one product per trust-region step. **Batched:** the robots of a class share no edge, so their
 problems are independent and are solved together as one block-diagonal problem (one ``Q_cc``
 product and one Cholesky solve of the class per tCG iteration), with every scalar of the
 trust-region / tCG iteration (radius, step, curvature, acceptance, stopping) kept per robot, so
@@ -47,6 +52,21 @@ every ``restart_interval`` (30) iterations a plain update from ``X`` and ``V = X
 ``X`` and the momentum reset. The tolerance ignores increases at the level of the floating-point
 error of ``f`` near convergence: without it, ml-pgo on mit with 35 robots restarted 707 times in
 1000 rounds (3 times with it), for the same final cost.
+
+**Speed** (benchmarks/bench_rbcd.py; profiled with cProfile on m3500 and city10k, 7 robots).
+The time is in the tCG iterations: a Hessian product, a Cholesky solve (each ~50–800 µs on a
+robot of 500–1400 poses, near their arithmetic cost) and about 100 NumPy calls on
+``(n_α, 3, r)`` arrays per iteration, whose per-call overhead is as large as the sparse work at
+these sizes. Removing the redundant products (the linear term, the start's cost and gradient,
+the last tCG solve) saved ~8 % of the CPU time; measured and not kept, for no gain or a loss: a
+pose-innermost ``(r, 3, N)`` layout (equal CPU time: the transposes the sparse kernels need
+cancel the faster projections), ``einsum`` for the 2×2 blocks (2× slower at these sizes),
+batching the large robots (slower: a batch runs until its slowest robot stops), selecting the
+class at ``X`` instead of ``Y`` (same convergence). Fewer tCG iterations are cheaper per round
+but not per unit of progress (m3500, 7 robots, rounds to 1e-3 with the adaptive / fixed restart:
+58 / 115 with ≤ 10, 91 / 219 with ≤ 5, 161 / >300 with ≤ 3), so the default stays. 1000 rounds
+on m3500 and city10k stay well above 10× GTSAM Levenberg–Marquardt's time (bench_rbcd.py prints
+the ratios).
 
 **Accounting.** ``parallel_s`` = Σ over rounds of (the slowest updating robot's local update time
 + the round's vectorised bookkeeping — extrapolation, gradient norms, objective — divided by the
@@ -307,6 +327,8 @@ class ClassBlock:
             its neighbours' separator rows).
         reach: ``Q[reach_rows, class rows]`` ``(m, 3n_c)`` CSR: how a change of the class's
             poses changes ``QX``.
+        own_in_reach: ``(3n_c,)`` positions of the class's own rows in ``reach_rows``
+            (``reach[own_in_reach] = Q_cc``).
         separators: number of the class's poses with an edge to another robot.
         robot_nnz: ``(k,)`` nonzeros of each robot's ``Q_αα``: the work weight of one of its
             Hessian–vector products (see :func:`robot_shares`).
@@ -319,12 +341,17 @@ class ClassBlock:
     preconditioner: CholeskyPreconditioner
     reach_rows: np.ndarray
     reach: sp.csr_matrix
+    own_in_reach: np.ndarray
     separators: int
     robot_nnz: np.ndarray
 
     @property
     def num_robots(self) -> int:
         return self.robots.size
+
+    @property
+    def per_robot(self) -> _PerRobot:
+        return _PerRobot(self.robot_of_pose, self.num_robots)
 
 
 def pose_rows(poses: np.ndarray) -> np.ndarray:
@@ -366,6 +393,7 @@ def class_blocks(
                 preconditioner=CholeskyPreconditioner(hessian, shift),
                 reach_rows=reach_rows,
                 reach=columns[reach_rows],
+                own_in_reach=np.searchsorted(reach_rows, rows),
                 separators=int(np.count_nonzero(is_separator[poses])),
                 robot_nnz=robot_nnz,
             )
@@ -437,11 +465,14 @@ class _PerRobot:
 
     def inner(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """``⟨a_α, b_α⟩`` per robot, ``(k,)``, for ``a``, ``b`` ``(n_c, 3, r)``."""
+        if self.count == 1:
+            return np.array([np.vdot(a, b)])
         return np.bincount(self.owner, np.einsum("nkr,nkr->n", a, b), minlength=self.count)
 
     def spread(self, values: np.ndarray) -> np.ndarray:
-        """Per-robot ``(k,)`` values broadcastable against ``(n_c, 3, r)``."""
-        return values[self.owner][:, None, None]
+        """Per-robot ``(k,)`` values broadcastable against ``(n_c, 3, r)`` (one robot: the
+        ``(1,)`` array itself)."""
+        return values if self.count == 1 else values[self.owner][:, None, None]
 
 
 def truncated_cg(
@@ -480,7 +511,7 @@ def truncated_cg(
     hit_boundary = np.zeros_like(active)
     products = np.zeros(active.shape, dtype=np.int64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        for _ in range(max_iterations):
+        for iteration in range(max_iterations):
             h_delta = hessian(delta)
             products += running
             curvature = robots.inner(delta, h_delta)
@@ -493,6 +524,8 @@ def truncated_cg(
             step = np.where(boundary, tau, np.where(running, alpha, 0.0))
             eta += robots.spread(step) * delta
             h_eta += robots.spread(step) * h_delta
+            if iteration == max_iterations - 1:  # η is final: no next residual or direction
+                break
             residual += robots.spread(np.where(running, alpha, 0.0)) * h_delta
             e_pe = np.where(running, e_pe_next, e_pe)
             running &= np.sqrt(robots.inner(residual, residual)) > stop_norm
@@ -508,31 +541,42 @@ def truncated_cg(
     return eta, h_eta, hit_boundary, products
 
 
+class LocalStep(NamedTuple):
+    """The outcome of :func:`local_update`: the new ``Z`` ``(n_c, 3, r)``, the change of ``QX``
+    on the class's ``reach_rows`` ``(m, r)``, and each robot's Hessian–vector products ``(k,)``
+    (its work)."""
+
+    z: np.ndarray
+    q_change: np.ndarray
+    products: np.ndarray
+
+
 def local_update(
-    block: ClassBlock, z: np.ndarray, linear: np.ndarray, options: LocalOptions
-) -> tuple[np.ndarray, np.ndarray]:
+    block: ClassBlock, z: np.ndarray, euclidean: np.ndarray, options: LocalOptions
+) -> LocalStep:
     """Every robot α of the class runs RTR on ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` from ``z``
-    ``(n_c, 3, r)`` with the linear term ``linear = G_α`` ``(n_c, 3, r)``; vectorised over the
-    class with per-robot trust regions, acceptance and stopping (the robots are independent).
+    ``(n_c, 3, r)``, given its Euclidean gradient there, ``euclidean = Q_αα Z + G_α`` (the
+    class's rows of ``QY``), ``(n_c, 3, r)``; vectorised over the class with per-robot trust
+    regions, acceptance and stopping (the robots are independent).
+
+    Costs are tracked relative to ``f_α(z)``: a step ``Δ`` costs
+    ``f_α(Z + Δ) − f_α(Z) = ⟨Δ, ∇f_α(Z)⟩ + ½⟨Δ, Q_αα Δ⟩`` and moves the gradient by ``Q_αα Δ``,
+    so each candidate needs one sparse product, ``reach · Δ``, whose own rows are ``Q_αα Δ`` and
+    whose other rows are the change of the neighbours' ``QX`` (neither ``G_α`` nor ``f_α``
+    itself is ever formed).
 
     Each robot runs until ``options.rtr_iterations`` steps were accepted, its gradient norm
     falls below ``options.gradient_tolerance``, or ``MAX_REJECTIONS`` steps were rejected (each
     rejection shrinks its radius ×¼, as dpgo does). Its first radius is 10 × the P-norm of its
     preconditioned gradient.
-
-    Returns:
-        The new ``Z`` and each robot's number of Hessian–vector products ``(k,)`` (its work).
     """
-    robots = _PerRobot(block.robot_of_pose, block.num_robots)
-
-    def cost_and_gradient(point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        euclidean = apply_q(block.hessian, point) + linear
-        return robots.inner(point, 0.5 * (euclidean + linear)), euclidean
+    robots = block.per_robot
+    rank = z.shape[-1]
 
     def precondition(point: np.ndarray, v: np.ndarray) -> np.ndarray:
         return project_tangent(point, block.preconditioner.solve(v))
 
-    cost, euclidean = cost_and_gradient(z)
+    q_change = np.zeros((block.reach_rows.size, rank))
     radius = np.full(block.num_robots, np.inf)
     accepted = np.zeros(block.num_robots, dtype=np.int64)
     rejected = np.zeros_like(accepted)
@@ -563,22 +607,30 @@ def local_update(
         )
         products += used
         model_decrease = -(robots.inner(gradient, eta) + 0.5 * robots.inner(eta, h_eta))
-        candidate = retract(z, eta)
-        candidate_cost, candidate_euclidean = cost_and_gradient(candidate)
+        step = np.where(robots.spread(pending), retract(z, eta) - z, 0.0)
+        reach_step = block.reach @ flat(step)
+        q_step = reach_step[block.own_in_reach].reshape(step.shape)  # Q_cc Δ
+        decrease = -robots.inner(step, euclidean + 0.5 * q_step)
         with np.errstate(divide="ignore", invalid="ignore"):
-            rho = np.where(model_decrease > 0, (cost - candidate_cost) / model_decrease, -np.inf)
+            rho = np.where(model_decrease > 0, decrease / model_decrease, -np.inf)
         radius = np.where(pending & (rho < 0.25), radius / 4.0, radius)
         radius = np.where(pending & (rho > 0.75) & hit_boundary, radius * 2.0, radius)
-        moved = pending & (rho > 1e-4) & (candidate_cost < cost)
-        z = np.where(robots.spread(moved), candidate, z)
-        euclidean = np.where(robots.spread(moved), candidate_euclidean, euclidean)
-        cost = np.where(moved, candidate_cost, cost)
+        moved = pending & (rho > 1e-4) & (decrease > 0)
+        if np.array_equal(moved, pending):  # every robot that stepped moved
+            q_change += reach_step
+        else:
+            step = np.where(robots.spread(moved), step, 0.0)
+            reach_step = block.reach @ flat(step)
+            q_step = reach_step[block.own_in_reach].reshape(step.shape)
+            q_change += reach_step
+        z = z + step
+        euclidean = euclidean + q_step
         accepted += moved
         rejected += pending & ~moved
         pending &= (accepted < options.rtr_iterations) & (rejected < MAX_REJECTIONS)
         if not pending.any():
             break
-    return z, products
+    return LocalStep(z, q_change, products)
 
 
 def robot_shares(block: ClassBlock, elapsed_s: float, products: np.ndarray) -> np.ndarray:
@@ -675,13 +727,11 @@ class _Rounds:
         slowest_s = robots_s = 0.0
         for block in self.batches[colour]:
             start = time.perf_counter()
-            z = y[block.poses]
-            linear = q_y[block.poses] - apply_q(block.hessian, z)  # G_α = Q_{α,β} Y_β
-            z_new, products = local_update(block, z, linear, self.options.local)
-            x_new[block.poses] = z_new
-            flat(q_x_new)[block.reach_rows] += block.reach @ flat(z_new - z)
+            step = local_update(block, y[block.poses], q_y[block.poses], self.options.local)
+            x_new[block.poses] = step.z
+            flat(q_x_new)[block.reach_rows] += step.q_change
             elapsed_s = time.perf_counter() - start
-            slowest_s = max(slowest_s, float(robot_shares(block, elapsed_s, products).max()))
+            slowest_s = max(slowest_s, float(robot_shares(block, elapsed_s, step.products).max()))
             robots_s += elapsed_s
         return _Update(
             x_new,

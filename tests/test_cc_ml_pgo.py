@@ -148,16 +148,21 @@ def test_batched_class_update_equals_each_robot_updating_alone(small_graph, rng)
     q_x = rbcd.apply_q(q, x)
     options = rbcd.LocalOptions(rtr_iterations=2, tcg_iterations=10, gradient_tolerance=1e-6)
 
-    def update(group: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def update(group: np.ndarray) -> tuple[np.ndarray, rbcd.LocalStep]:
         (block,) = rbcd.class_blocks(q, small_graph, robots, [group])
-        z = x[block.poses]
-        linear = q_x[block.poses] - rbcd.apply_q(block.hessian, z)
-        return block.poses, *rbcd.local_update(block, z, linear, options)
+        step = rbcd.local_update(block, x[block.poses], q_x[block.poses], options)
+        # the returned change of QX is that of the new poses
+        moved = x.copy()
+        moved[block.poses] = step.z
+        np.testing.assert_allclose(
+            rbcd.flat(rbcd.apply_q(q, moved) - q_x)[block.reach_rows], step.q_change, atol=1e-10
+        )
+        return block.poses, step
 
-    poses, together, products = update(members)
+    poses, (together, _, products) = update(members)
     assert np.all(products > 0)
     for index, robot in enumerate(members):
-        own, alone, own_products = update(np.array([robot]))
+        own, (alone, _, own_products) = update(np.array([robot]))
         mine = np.isin(poses, own)
         np.testing.assert_allclose(together[mine], alone, atol=1e-12)
         assert products[index] == own_products[0]
