@@ -7,15 +7,16 @@ starts and outlier detection (issue 3).
 Prints one table row per run: dataset, robots n, init, F_chordal after the iterations, relative
 gap to the published SE-Sync-convention optimum (REFERENCES §6.2), the first iteration within
 1e-3, iterations, wall_s, parallel_s (a makespan model, see baselines.mm_pgo). Then the
-1000-iteration wall time (and parallel_s) at n = 7 divided by GTSAM
-Levenberg–Marquardt's time on the same graph (measured in the same run; GTSAM from the file's
-odometry initial estimate, a gauge prior on pose 0, default parameters), and precision / recall
-of the outliers flagged on intel with 10 % injected outliers.
+1000-iteration time at n = 7 on m3500 and city10k divided by GTSAM Levenberg–Marquardt's time
+on the same graph (measured in the same run; GTSAM from the file's odometry initial estimate, a
+gauge prior on pose 0, default parameters), and precision / recall of the outliers flagged on
+intel with 10 % injected outliers.
 
-Timing on a shared machine: other processes' load changes both times by up to 2× within a run,
-so each side is the minimum over ``--timing-repeats`` (3) runs, GTSAM and mm-pgo alternating
-(the convergence table's n = 7 run is mm-pgo's first); the table also gives the ratio of the
-first runs alone. ``--timing-repeats 1`` is a single measurement of each.
+Timing on a shared machine: other processes' load changes wall times by up to 2× within a
+run, so the timing table alternates ``--timing-repeats`` (3) runs of GTSAM and of mm-pgo (n = 7,
+chordal start) and gives the minimum of each side's wall seconds and of its CPU seconds
+(``time.process_time``; both are single-threaded with OMP_NUM_THREADS=1, so CPU time is the
+load-independent measure) and their ratios.
 """
 
 from __future__ import annotations
@@ -40,15 +41,16 @@ OPTIMA = {  # F_chordal* (SE-Sync convention), REFERENCES §6.2
 }
 
 
-def gtsam_seconds(name: str) -> float:
-    """Seconds GTSAM LM takes on dataset ``name`` (file initial estimate, prior on pose 0)."""
+def gtsam_seconds(name: str) -> tuple[float, float]:
+    """Wall and CPU seconds GTSAM LM takes on dataset ``name`` (file initial estimate, prior on
+    pose 0)."""
     import gtsam
 
     graph, initial = gtsam.readG2o(str(datasets.dataset_path(name)), False)
     graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
-    tic = time.perf_counter()
+    wall, cpu = time.perf_counter(), time.process_time()
     gtsam.LevenbergMarquardtOptimizer(graph, initial, gtsam.LevenbergMarquardtParams()).optimize()
-    return time.perf_counter() - tic
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def run(name: str, robots: int, init: str, iterations: int) -> Result:
@@ -65,21 +67,22 @@ def run(name: str, robots: int, init: str, iterations: int) -> Result:
     return result
 
 
-def timing_row(name: str, first: tuple[float, float], iterations: int, repeats: int) -> str:
-    """A timing-table row for ``name`` at n = 7: the minima over ``repeats`` alternating runs
-    of GTSAM LM and of mm-pgo (``first`` = (wall_s, parallel_s) of mm-pgo's first run)."""
+def timing_row(name: str, iterations: int, repeats: int) -> str:
+    """A timing-table row for ``name`` at n = 7: minima over ``repeats`` alternating runs of
+    GTSAM LM and of mm-pgo (chordal start) of the wall and the CPU seconds, and their ratios."""
     problem = DistributedProblem.from_graph(datasets.load(name), 7)
-    references = [gtsam_seconds(name)]
-    runs = [first]
-    for _ in range(repeats - 1):
-        result = mm_pgo.solve(problem, Budget(iterations=iterations), init="chordal")
-        runs.append((result.wall_s, result.parallel_s))
+    references, runs = [], []
+    for _ in range(repeats):
         references.append(gtsam_seconds(name))
-    wall, parallel = min(runs)
-    reference = min(references)
+        cpu = time.process_time()
+        result = mm_pgo.solve(problem, Budget(iterations=iterations), init="chordal")
+        runs.append((result.wall_s, time.process_time() - cpu, result.parallel_s))
+    wall, cpu, parallel = (min(column) for column in zip(*runs, strict=True))
+    reference_wall, reference_cpu = (min(column) for column in zip(*references, strict=True))
     return (
-        f"| {name} | {wall:.2f} | {parallel:.2f} | {reference:.3f} | {wall / reference:.1f} | "
-        f"{parallel / reference:.1f} | {first[0] / references[0]:.1f} |"
+        f"| {name} | {wall:.2f} | {cpu:.2f} | {parallel:.2f} | {reference_wall:.3f} | "
+        f"{reference_cpu:.3f} | {wall / reference_wall:.1f} | {cpu / reference_cpu:.1f} | "
+        f"{parallel / reference_wall:.1f} |"
     )
 
 
@@ -98,24 +101,22 @@ def main() -> None:
 
     print("| dataset | n | init | F_chordal | rel gap | first<1e-3 | its | wall_s | parallel_s |")
     print("|---|---|---|---|---|---|---|---|---|")
-    walls = {}
     for name in names:
         for robots in robot_counts:
-            result = run(name, robots, "chordal", args.iterations)
-            walls[name, robots] = (result.wall_s, result.parallel_s)
+            run(name, robots, "chordal", args.iterations)
     if not args.skip_odometry:
         for name in names:
             run(name, 7, "odometry", args.iterations)
 
     if not args.skip_gtsam:
         print(
-            f"\n| dataset | mm-pgo wall_s (n=7, min of {args.timing_repeats}) | parallel_s | "
-            "GTSAM LM s (min) | wall ratio | par ratio | first-run ratio |"
+            f"\n| dataset | mm-pgo wall_s (n=7, min of {args.timing_repeats}) | cpu_s | "
+            "parallel_s | GTSAM LM wall s | cpu s | wall ratio | cpu ratio | par ratio |"
         )
-        print("|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|")
         for name in ("m3500", "city10k"):
-            if (name, 7) in walls:
-                print(timing_row(name, walls[name, 7], args.iterations, args.timing_repeats))
+            if name in names:
+                print(timing_row(name, args.iterations, args.timing_repeats))
 
     if not args.skip_outliers:
         print("\n| dataset | n | kernel | outliers | precision | recall | F_chordal |")
