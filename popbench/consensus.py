@@ -54,7 +54,8 @@ order of its local graph. Each robot still pending a step gets its own block (a 
 factorised by SuperLU in that order with diagonal pivots — on city10k at n = 7 ≈ 3× faster
 than SuperLU's default column order (measured), so each robot's damping and step acceptance
 stay its own. Measured and not kept: one factorisation of the whole block-diagonal matrix
-(SuperLU ≈ 2× the seven blocks' time, cholespy ≈ 10×), and reusing an earlier
+(SuperLU: about the seven blocks' time together, but every robot refactorised whenever one
+retries a step; cholespy: 5–10× slower), and reusing an earlier
 factorisation as the preconditioner of conjugate gradients (to a relative residual 1e-10):
 the Gauss–Newton Hessian in world-frame increments moves with every heading, so on city10k
 from the odometry start 97 % of the solves still needed a refactorisation within 3 CG
