@@ -7,7 +7,8 @@
 Part 1 — per-step time against the local graph size. One robot, synthetic V2 local graphs of
 P poses (P from 60 to 10,000; ≈ 1.15·P edges). For each P: the median wall time of one prop-v1
 step (incremental actor pass + environment step + cache refresh, agents.methods.run_episode,
-first `--steps` steps) and, measured in the same run, the median time of one *full* actor pass
+first `--steps` steps: the slowest of an episode, since the edge head scores every unprocessed
+edge) and, measured in the same run, the median time of one *full* actor pass
 over the same graph (what a non-incremental implementation pays per step). Printed with the
 ratio full / incremental.
 
