@@ -82,6 +82,10 @@ class IncrementalPolicy:
         slots = incident[:, :v]
         self.incident = torch.where(slots < e, slots + offsets.view(-1, 1, 1) * e, n_edges)
         self.incident = self.incident.reshape(n_nodes, -1)
+        # Static per incidence: does the edge's forward (reverse) message arrive at the vertex?
+        vertex = torch.arange(n_nodes).unsqueeze(-1)
+        self.at_tail = (self.tails[self.incident] == vertex).unsqueeze(-1)
+        self.at_head = (self.heads[self.incident] == vertex).unsqueeze(-1)
         degree = torch.zeros(n_nodes + 1).index_add(0, self.tails[:-1], self.valid[:-1])
         degree = degree.index_add(0, self.heads[:-1], self.valid[:-1])
         self.degree = degree[:n_nodes].clamp(min=1.0)
@@ -175,10 +179,8 @@ class IncrementalPolicy:
         """h^(ℓ+1) of `vertices` from cached gated messages (eqs. mean_aggr, node_update)."""
         slots = self.incident[vertices]  # [S, D]
         z = self.gates[layer][slots].unsqueeze(-1)
-        to_tail = (self.tails[slots] == vertices.unsqueeze(-1)).unsqueeze(-1)
-        to_head = (self.heads[slots] == vertices.unsqueeze(-1)).unsqueeze(-1)
         forward, reverse = self.messages[layer]
-        arriving = to_tail * forward[slots] + to_head * reverse[slots]
+        arriving = self.at_tail[vertices] * forward[slots] + self.at_head[vertices] * reverse[slots]
         mean = (z * arriving).sum(1) / self.degree[vertices].unsqueeze(-1)
         h = self.h[layer][vertices]
         return conv.activation(conv.update_net(torch.cat([h, mean], -1)))
