@@ -47,18 +47,19 @@ scheme diverge on MITb, whose chordal initialisation is 44 % above the optimum. 
 
 *Hessian refresh.* ``H`` depends on the iterate only through each intra edge's lever
 ``J R_pᵀ(t_q − t_p)`` and relative rotation ``R(θ_q − θ_p)``, i.e. through the translation
-residual's Jacobian ``J_e = [−I, −lever | R(φ), 0]``. Every ``hessian_interval`` (10) iterations
-the largest relative change ``‖J_e − J_e⁰‖_F / ‖J_e⁰‖_F`` since the last factorisation is
-measured (O(M), ≈ 1/10 of an iteration) and ``H`` is refactorised when it exceeds
-``hessian_tolerance`` (0.02); ``hessian_tolerance=0`` refactorises every ``hessian_interval``
-iterations (the former rule). Measured (1000 iterations, n = 7 unless stated): from the chordal
-start the geometry barely moves, so the factorisations drop from 100 to 1–5 with the same final
-F (m3500 193.9554, city10k 638.6643, MITb n = 3 / 7 / 35 61.1541 / 61.1739 / 61.3114, each
-identical to 4 decimals with ``hessian_tolerance=0``) — the factorisation was ≈ 40 % of the run;
-from odometry the geometry keeps moving and ``H`` is still refactorised at nearly every check
-(m3500, city10k: 99; MITb: 46). MITb's divergent zero-residual Hessian had drift 0.24 at the
-chordal start. A looser 0.05 left the Hessian of the odometry start in place throughout on the
-30-pose test loop (``tests/test_mm_pgo.py``) and slowed the final convergence there (relative
+residual's Jacobian ``J_e = [−I, −lever | R(φ), 0]``. Every ``hessian_interval`` (10) iterations the
+largest relative change ``‖J_e − J_e⁰‖_F / ‖J_e⁰‖_F`` since the last factorisation is measured
+(O(M), ≈ 1/10 of an iteration) and ``H`` is refactorised when it exceeds ``hessian_tolerance``
+(0.02); ``hessian_tolerance=0`` refactorises every ``hessian_interval`` iterations (the former
+rule). Measured (1000 iterations, n = 7 unless stated): from the chordal start the geometry barely
+moves, so the factorisations drop from 100 to 1–5 with the same final F (m3500 193.9554, city10k
+638.6643, MITb n = 3 / 7 / 35 61.1541 / 61.1739 / 61.3114, each identical to 4 decimals with
+``hessian_tolerance=0``) — the factorisation was ≈ 40 % of the run; from odometry the geometry keeps
+moving and ``H`` is still refactorised at nearly every check (m3500, city10k: 99; MITb: 50). (From
+odometry MITb stops in a local minimum, not for lack of iterations: F after 1000 / 3000 iterations
+1535 / 1533 accelerated, 1431 / 1299 plain.) MITb's divergent zero-residual Hessian had drift 0.24
+at the chordal start. A looser 0.05 left the Hessian of the odometry start in place throughout on
+the 30-pose test loop (``tests/test_mm_pgo.py``) and slowed the final convergence there (relative
 gap after 300 iterations 1.4e-6 against 1.0e-6 with 0, 0.01 or 0.02).
 
 **Acceleration** (AMM-PGO, REFERENCES §3.5): ``s_{k+1} = ½ + ½√(4s_k² + 1)``,
