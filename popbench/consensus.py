@@ -203,7 +203,7 @@ def _team(problem: DistributedProblem, local_poses: list[np.ndarray]) -> _Team:
     )
 
 
-def _hessian_blocks(team: _Team, poses: np.ndarray):
+def _hessian_blocks(team: _Team, poses: np.ndarray) -> tuple:
     """Edge costs ``(M_T,)``, Gauss–Newton blocks ``2JᵀJ`` (tail-tail, tail-head, head-head,
     each ``(M_T, 3, 3)``) and gradients ``2Jᵀe`` (tail, head, each ``(M_T, 3)``) of eq. 1."""
     lin = linearise(team.graph, poses)
@@ -269,12 +269,12 @@ def _vertex_order(team: _Team) -> np.ndarray:
 class _TeamSystem:
     """Fixed sparse structure of every robot's x-update system at once.
 
-    Unknowns: the additive increments of all team rows but the gauge, ``3(V − 1)``, renumbered
-    in a nested-dissection order (fill-reducing for SuperLU's natural-order factorisation). The
-    matrix is block diagonal — no edge couples two robots' rows — so one factorisation / solve
-    of it is every robot's own. Per edge the four 3×3 blocks ``(p,p), (p,q), (q,p), (q,q)`` and
-    per copy its 3×3 penalty block go to precomputed CSC slots (``np.bincount``); entries of the
-    gauge row go to one discarded slot.
+    Unknowns: the additive increments of all team rows but the gauge, ``3(V − 1)``, robot by
+    robot (robot ``r``: ``bounds[r]:bounds[r + 1]``), each robot's in a nested-dissection order
+    (fill-reducing for SuperLU's natural-order factorisation). The matrix is block diagonal — no
+    edge couples two robots' rows — so each robot's block is its own system. Per edge the four
+    3×3 blocks ``(p,p), (p,q), (q,p), (q,q)`` and per copy its 3×3 penalty block go to
+    precomputed CSC slots (``np.bincount``); entries of the gauge row go to one discarded slot.
     """
 
     def __init__(self, team: _Team) -> None:
