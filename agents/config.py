@@ -30,6 +30,8 @@ class ModelConfig:
         gumbel_temperature: Gumbel-softmax temperature of the edge selector (paper: unspecified; 1).
         correction_hidden: widths of the correction MLP (paper: 2 × 512).
         log_std_bounds: clamp of the Gaussian log-std before the tanh squash.
+        correction_init_log_std: initial bias of the correction head's log-std outputs (the mean
+            outputs start at zero: the untrained deterministic policy is the no-op; our choice).
         delta_max: bound |δx|, |δy|, |δθ| ≤ Δmax (metres, metres, radians); the environment's
             action spec overrides it in the trainer.
         critic_hidden: critic GNN width; critic_layers its depth (non-recurrent, gated).
@@ -51,6 +53,7 @@ class ModelConfig:
     gumbel_temperature: float = 1.0
     correction_hidden: tuple[int, ...] = (512, 512)
     log_std_bounds: tuple[float, float] = (-5.0, 2.0)
+    correction_init_log_std: float = -1.0
     delta_max: tuple[float, float, float] = (0.5, 0.5, 0.25)
     critic_hidden: int = 128
     critic_layers: int = 5
@@ -75,7 +78,14 @@ class AlgorithmConfig:
             a per-state fraction of the uniform distribution's entropy (discrete-SAC convention).
         delta_target_entropy: target entropy of the correction head, measured on δ/Δmax
             ∈ (−1, 1)³; −3 = −dim(δ), the SAC heuristic.
-        gate_l1: weight of the L1 penalty on the gates z (paper: unspecified).
+        gate_l1: weight of the L1 penalty on the actor's gates z, applied to their mean over
+            real edges and layers (paper: unspecified).
+        reward_scale: SAC reward scale c: the critic's target uses c·r (agents.loss; paper:
+            unspecified, i.e. 1). Chosen so that the per-step reward, a fraction ≈ 1/|E_i| of the
+            remaining error, is O(1) against the entropy bonus (measurements in
+            agents/checkpoints/README.md).
+        huber_delta: the critic regresses its TD error with a Huber loss of this width (in
+            scaled-reward units); None gives SAC's ½ δ² (paper: unspecified). See agents.loss.
         max_grad_norm: gradient clipping of every optimiser step.
     """
 
@@ -93,6 +103,8 @@ class AlgorithmConfig:
     edge_entropy_ratio: float = 0.5
     delta_target_entropy: float = -3.0
     gate_l1: float = 1e-3
+    reward_scale: float = 100.0
+    huber_delta: float | None = 1.0
     max_grad_norm: float = 10.0
 
 
@@ -161,9 +173,19 @@ def _build(kind: type, values: dict[str, Any]) -> Any:
 # CPU-feasible deviation from the paper (used for the committed checkpoints, see
 # agents/checkpoints/README.md): on a shared 2-core CPU one GA-SAC update of the paper-size model
 # (5 × 128 GNN, 2 × 512 heads, batch 64, n = 7) takes ~16 s, so the paper's 10,000-frame warm-up
-# and 30,000-transition buffer cannot be reached in ~30 min. Every width is divided by ~4, the
+# and 30,000-transition buffer cannot be reached in ~40 min. Every width is divided by ~4, the
 # GNN has 3 layers (actor) / 2 (critic), the minibatch is 32 and the warm-up / buffer are scaled
-# to the ~25k frames such a run can collect. γ, learning rates, τ and the entropy targets stay.
+# to the ~10–25k frames such a run can collect. γ and the entropy targets stay the paper's /
+# defaults. Such a run makes only ~10³ updates, so the rates are raised where the paper's values
+# cannot act within 10³ steps (measured, agents/checkpoints/README.md "Diagnosis"):
+# * critic_lr 3e-4 (paper 3e-5) and tau 5e-3 (paper 1e-3): with 1e-3 the target critic covers
+#   only ~1 − e^{−0.7} ≈ 50 % of the way to the online critic in 700 updates;
+# * alpha_lr 3e-3: at 3e-4 log α can move by at most ~0.2 in 700 Adam steps, i.e. the automatic
+#   temperatures stay at their initial values;
+# * gate_l1 1e-5 (default 1e-3): with 1e-3 the penalty's constant gradient dominates the actor's
+#   noisy Q-gradient on the gate parameters under Adam and shut every gate (mean z 0.86 → 0.01
+#   in 300 updates); with 1e-5 the gates stay open (0.8–0.9) unless the critic says otherwise;
+# * 16 updates per 128-frame batch (8 envs): updates, not frames, are the scarce resource.
 CPU_SMALL = TrainConfig(
     model=ModelConfig(
         hidden=32,
@@ -179,13 +201,20 @@ CPU_SMALL = TrainConfig(
         critic_mlp=(128, 64),
     ),
     algorithm=AlgorithmConfig(
-        buffer_size=10_000, batch_size=32, warmup_frames=1_024, updates_per_batch=4
+        buffer_size=10_000,
+        batch_size=32,
+        warmup_frames=1_024,
+        updates_per_batch=16,
+        critic_lr=3e-4,
+        tau=5e-3,
+        alpha_lr=3e-3,
+        gate_l1=1e-5,
     ),
     experiment=ExperimentConfig(
         num_envs=8,
         frames=24_000,
         frames_per_batch=128,
-        checkpoint_interval=2_048,
+        checkpoint_interval=1_024,
         eval_interval=2_048,
     ),
 )

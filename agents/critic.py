@@ -1,9 +1,17 @@
 """The GA-SAC central critic (CTDE, paper §III-D): twin soft Q-values per agent.
 
 A shared, non-recurrent gated GNN embeds every robot's local graph. For each robot the vector
-[graph latent ‖ embedding of its chosen edge [h_p ‖ h_q ‖ a_pq] ‖ correction / Δmax] is formed;
+[graph latent ‖ embedding of its chosen edge [h_p ‖ h_q ‖ a_pq ‖ symlog r_pq] ‖
+correction / Δmax ‖ symlog(r_pq + Δ) ‖ episode progress] is formed;
 the n vectors are concatenated, projected to 512, and an MLP (512, 256) returns, per twin head,
 one Q-value per agent (MAAC-style Q_i(s, a_1..a_n), read against each agent's own reward).
+
+symlog(r_pq + Δ) is the chosen edge's residual after the correction (exact: the environment
+moves the head by Δ in the tail's frame). Without it the critic must learn the product-like
+interaction of r and Δ inside one MLP over n concatenated agents; after 430 updates of the
+cpu-small run it had not (measured: Q changed by 0.003 between Δ = 0 and a random Δ whose true
+scaled immediate reward differed by −1.7, correlation 0.02; agents/checkpoints/README.md). The
+feature is the action's known effect on the edge, not the value of that effect.
 
 The critic is built for a fixed team size n (training only); actors replicate to any n. The two
 twin heads share the GNN trunk (one graph pass per batch); the heads themselves are independent.
@@ -16,7 +24,50 @@ from torch import Tensor, nn
 
 from agents.actor import mlp
 from agents.config import ModelConfig
-from agents.encoder import Encoding, GraphBatch, GraphEncoder, edge_embeddings
+from agents.encoder import (
+    RESIDUAL_FEATURES,
+    Encoding,
+    GraphBatch,
+    GraphEncoder,
+    edge_embedding_width,
+    edge_embeddings,
+    symlog,
+)
+
+
+def corrected_residual(residuals: Tensor, edge_weights: Tensor, delta: Tensor) -> Tensor:
+    """[G, 3] residual of each chosen edge after its correction: r + Δ, angle wrapped.
+
+    The environment moves the head q in the tail's frame by exactly Δ (envs.core, eq. C), so the
+    chosen edge's residual [R_pᵀ(t_q − t_p) − t̃, θ_q − θ_p − θ̃] becomes r + Δ. Args: residuals
+    [G, E, 3]; edge_weights [G, E + 1] (row E, the no-op, has a zero residual); delta [G, 3].
+    """
+    padded = torch.cat([residuals, torch.zeros_like(residuals[:, :1])], dim=1).to(delta.dtype)
+    moved = torch.einsum("ge,ged->gd", edge_weights, padded) + delta
+    return torch.cat([moved[:, :2], wrap_angle(moved[:, 2:])], dim=-1)
+
+
+def progress(graphs: GraphBatch) -> Tensor:
+    """[G, 2] episode progress of each agent: fraction of its real edges still unprocessed and
+    log(1 + number of selectable choices).
+
+    The soft value depends strongly on how many steps are left (future rewards, entropy bonuses,
+    when the terminal bonus arrives), but nothing else in the critic's input says it: the GNN
+    never reads the processed flags. Without it the TD error is dominated by this unexplained
+    time dependence.
+    """
+    real = graphs.edge_mask.sum(-1).clamp(min=1).to(torch.float32)
+    left = (graphs.edge_mask & ~graphs.processed).sum(-1).to(torch.float32)
+    choices = graphs.action_mask.sum(-1).to(torch.float32)
+    return torch.stack([left / real, torch.log1p(choices)], dim=-1)
+
+
+def wrap_angle(angle: Tensor) -> Tensor:
+    """Angles (rad) wrapped to [−π, π)."""
+    return angle - 2.0 * torch.pi * torch.floor((angle + torch.pi) / (2.0 * torch.pi))
+
+
+PROGRESS_FEATURES = 2  # see progress()
 
 
 class CentralCritic(nn.Module):
@@ -28,7 +79,13 @@ class CentralCritic(nn.Module):
         self.encoder = GraphEncoder.from_config(
             node_dim, edge_dim, config, config.critic_hidden, config.critic_layers
         )
-        per_agent = config.critic_hidden + 2 * config.critic_hidden + edge_dim + 3
+        per_agent = (
+            config.critic_hidden
+            + edge_embedding_width(config.critic_hidden, edge_dim)
+            + 3
+            + RESIDUAL_FEATURES
+            + PROGRESS_FEATURES
+        )
         self.heads = nn.ModuleList(
             nn.Sequential(
                 nn.Linear(agents * per_agent, config.critic_projection),
@@ -58,8 +115,12 @@ class CentralCritic(nn.Module):
         """
         encoding = self.encoder(graphs, deterministic)
         embeddings = edge_embeddings(encoding.nodes, graphs)
-        chosen = torch.einsum("ge,ged->gd", edge_weights.to(embeddings.dtype), embeddings)
-        per_agent = torch.cat([encoding.pooled, chosen, delta / self.delta_max], dim=-1)
+        weights = edge_weights.to(embeddings.dtype)
+        chosen = torch.einsum("ge,ged->gd", weights, embeddings)
+        after = symlog(corrected_residual(graphs.residuals, weights, delta))
+        per_agent = torch.cat(
+            [encoding.pooled, chosen, delta / self.delta_max, after, progress(graphs)], dim=-1
+        )
         joint = per_agent.reshape(-1, self.agents * per_agent.shape[-1])
         q_values = torch.stack([head(joint) for head in self.heads], dim=-1)
         return q_values, encoding

@@ -31,6 +31,7 @@ KIND_COLUMNS = slice(0, 4)
 LOG_INFO_COLUMNS = slice(4, 7)
 INTER_LOOP_COLUMN = int(EdgeKind.INTER_LOOP)
 HARD_CONCRETE_STRETCH = (-0.1, 1.1)  # (a, b) of eq. minmax
+RESIDUAL_FEATURES = 3  # symlog(r) of an edge in its embedding (edge_embeddings)
 
 
 @dataclass
@@ -326,16 +327,28 @@ class GraphEncoder(nn.Module):
         return Encoding(nodes=nodes, pooled=pooled, gates=gates, gate_l1=gate_l1)
 
 
-def edge_embeddings(nodes: Tensor, graphs: GraphBatch) -> Tensor:
-    """[G, E + 1, 2d + d_e] per-choice features [h_p ‖ h_q ‖ a_pq] (tail, head, attributes).
+def edge_embedding_width(hidden: int, edge_dim: int) -> int:
+    """Width 2d + d_e + 3 of `edge_embeddings` rows."""
+    return 2 * hidden + edge_dim + RESIDUAL_FEATURES
 
-    Row E (the environment's no-op choice) is all zeros.
+
+def edge_embeddings(nodes: Tensor, graphs: GraphBatch) -> Tensor:
+    """[G, E + 1, 2d + d_e + 3] per-choice features [h_p ‖ h_q ‖ a_pq ‖ symlog(r_pq)] (tail,
+    head, attributes, current residual of the edge).
+
+    The residual r_pq = [R_pᵀ(t_q − t_p) − t̃, wrap(θ_q − θ_p − θ̃)] is expressed in the tail's
+    frame, the frame in which the environment applies the correction Δ to the head (envs.core,
+    eq. C): it is what a correction of this edge must see, and the critic must see it to value
+    Δ. It is the same residual the gate's reliability vector uses (eq. reliability_vector); the
+    GNN alone cannot recover it from the node poses to the needed precision (measured: see
+    agents/checkpoints/README.md). Row E (the environment's no-op choice) is all zeros.
     """
     num_vertices = nodes.shape[1]
     local = graphs.edge_index.clamp(0, num_vertices - 1)
     tail = torch.gather(nodes, 1, local[:, 0].unsqueeze(-1).expand(-1, -1, nodes.shape[-1]))
     head = torch.gather(nodes, 1, local[:, 1].unsqueeze(-1).expand(-1, -1, nodes.shape[-1]))
-    embeddings = torch.cat([tail, head, graphs.edge_attr], dim=-1)
+    residual = symlog(graphs.residuals.to(nodes.dtype))
+    embeddings = torch.cat([tail, head, graphs.edge_attr, residual], dim=-1)
     return torch.cat([embeddings, torch.zeros_like(embeddings[:, :1])], dim=1)
 
 

@@ -8,10 +8,31 @@ Per agent i (rewards are per agent; the critic gives one Q_i per agent, MAAC-sty
 
   policy π_i(e, δ | s) = π(e | s) · π(δ | s, e)
   soft value V_i(s) = min_k Q̄_k,i(s, a) + α_e H[π(· | s)] − α_δ log π(δ | s, e),  a ~ π
-  critic:  L_Q = ½ Σ_k E[(Q_k,i(s, a) − y_i)²],  y_i = r_i + γ (1 − terminated_i) V_i(s′)
+  critic:  L_Q = Σ_k E[ρ(Q_k,i(s, a) − y_i)],  y_i = c·r_i + γ (1 − terminated_i) V_i(s′),
+           ρ = Huber(d) (½ δ² inside |δ| ≤ d; ½ δ², SAC's, when huber_delta is None)
   actor:   L_π = E[−α_e H[π(· | s)] + α_δ log π(δ | s, e) − min_k Q_k,i(s, ã)] + λ_gate · mean z
   α_e:     L = E[log α_e · (H[π(· | s)] − H̄_e(s))],   H̄_e(s) = ratio · log |allowed edges|
   α_δ:     L = −E[log α_δ · (log π(δ | s, e) + H̄_δ)],  H̄_δ = −3
+
+Reward scale c (`AlgorithmConfig.reward_scale`; SAC's reward scale, Haarnoja et al. 2018 §5):
+the environment's per-step reward is a *fraction* of the remaining error (paper eq. reward), and
+one step moves one pose of a ~60-pose graph, so |r| ≈ 0.003–0.01 per step while the entropy
+bonus α_e·H ≈ 0.1 · 4 nats ≈ 0.4 per step: without scaling, the soft Q target is >95 % entropy and
+the critic cannot resolve what a correction is worth. Scaling the reward (equivalently, dividing
+both temperatures by c) makes the reward part of Q O(1). The environment's reward stays the
+paper's; c acts only inside this loss.
+
+Huber critic loss (`AlgorithmConfig.huber_delta`; the paper does not state its critic loss):
+the reward normalises each step's change by the agent's remaining error L_{t−1}, which the
+critic cannot observe and which varies ~400× between agents (a 60-pose local graph without a
+loop closure has L ≈ 200–800, one with accumulated drift 10⁴–10⁵). The same move therefore gives a
+tanh-clipped reward near −1 on a low-L agent and ~10⁻⁴ on a high-L one: 1 % of the scaled step
+rewards of a random policy are below −11 and 0.1 % below −73, and these carry most of the
+squared TD error, so an MSE critic spends its updates on them. Huber bounds their gradient.
+
+Gate L1: only the actor's gates carry the L1 penalty. The critic is a value estimator whose gates
+flag nothing (prop-v1's inlier flags are the actor's); penalising them only biases the value
+fit. λ_gate multiplies the mean of z over real edges and layers (a per-edge normalisation).
 
 The edge entropy is exact (a sum over the masked categorical) rather than a sampled −log π(e),
 which removes one source of variance. Q̄ uses the target critic parameters. The actor
@@ -46,6 +67,14 @@ from agents.actor import (
 from agents.config import AlgorithmConfig
 from agents.critic import CentralCritic
 from agents.encoder import Encoding, GraphBatch
+
+
+def critic_regression(td_error: Tensor, huber_delta: float | None) -> Tensor:
+    """Elementwise critic loss: ½ δ² (SAC) when `huber_delta` is None, else the Huber loss,
+    ½ δ² for |δ| ≤ d and d (|δ| − ½ d) beyond (same value and slope at |δ| = d)."""
+    if huber_delta is None:
+        return 0.5 * td_error.pow(2)
+    return F.huber_loss(td_error, torch.zeros_like(td_error), reduction="none", delta=huber_delta)
 
 
 class GASACLoss(LossModule):
@@ -84,6 +113,8 @@ class GASACLoss(LossModule):
         self.edge_entropy_ratio = config.edge_entropy_ratio
         self.delta_target_entropy = config.delta_target_entropy
         self.gate_l1 = config.gate_l1
+        self.reward_scale = config.reward_scale
+        self.huber_delta = config.huber_delta
         self.log_alpha_edge = nn.Parameter(torch.tensor(math.log(config.init_alpha_edge)))
         self.log_alpha_delta = nn.Parameter(torch.tensor(math.log(config.init_alpha_delta)))
 
@@ -151,17 +182,18 @@ class GASACLoss(LossModule):
                 - alpha_delta * self._acting(next_out) * next_out.delta_log_prob
             )
             soft_value = next_q.min(-1).values + entropy_bonus.view(batch, agents)
-            reward = tensordict.get(("next",) + keys.reward).reshape(batch, agents)
+            reward = self.reward_scale * tensordict.get(("next",) + keys.reward).reshape(
+                batch, agents
+            )
             terminated = self._agent_flag(tensordict, keys.terminated, (batch, agents))
             target = reward + self.gamma * (1.0 - terminated) * soft_value
 
         choices = graphs.action_mask.shape[-1]
         taken_edge = F.one_hot(tensordict.get(keys.action_edge).reshape(-1), choices)
         taken_delta = tensordict.get(keys.action_delta).reshape(-1, 3)
-        q_taken, critic_encoding = self.critic_network_apply(graphs, taken_edge, taken_delta)
+        q_taken, _ = self.critic_network_apply(graphs, taken_edge, taken_delta)
         td_error = q_taken - target.unsqueeze(-1)
-        loss_qvalue = 0.5 * td_error.pow(2).sum(-1).mean()
-        loss_qvalue = loss_qvalue + self.gate_l1 * critic_encoding.gate_l1
+        loss_qvalue = critic_regression(td_error, self.huber_delta).sum(-1).mean()
 
         # Actor: reparameterised hybrid action against the (detached) critic.
         out = self._act(tensordict, graphs, next_=False)

@@ -49,6 +49,8 @@ METRIC_FIELDS = (
     "alpha_edge",
     "alpha_delta",
     "entropy_edge",
+    "log_prob_delta",
+    "q_mean",
     "gate_mean",
     "eval_f_reduction",
     "wall_s",

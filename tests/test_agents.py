@@ -17,6 +17,8 @@ from agents.encoder import (
     EdgeConditionedConv,
     GraphBatch,
     GraphEncoder,
+    edge_embeddings,
+    symlog,
 )
 
 NODE_DIM, EDGE_DIM = 6, 11
@@ -256,6 +258,55 @@ def test_critic_shapes_and_action_sensitivity() -> None:
     assert not torch.allclose(q, q_other)
 
 
+def test_edge_embeddings_carry_the_edge_residual_in_the_tail_frame() -> None:
+    graphs = random_graphs(3)
+    nodes = torch.randn(3, 7, 5)
+    rows = edge_embeddings(nodes, graphs)
+    assert rows.shape == (3, 9 + 1, 2 * 5 + EDGE_DIM + 3)
+    torch.testing.assert_close(rows[:, :-1, -3:], symlog(graphs.residuals))
+    assert float(rows[:, -1].abs().sum()) == 0.0  # the no-op row
+
+
+def test_correction_sees_the_chosen_edge_residual() -> None:
+    torch.manual_seed(0)
+    actor = HybridActor(NODE_DIM, EDGE_DIM, SMALL)
+    graphs = random_graphs(4)
+    state = actor.initial_memory(4), torch.zeros(4, 10), torch.zeros(4, 3)
+    out = actor(graphs, *state, deterministic=True)
+    # Untrained, the deterministic correction is the no-op whatever the input.
+    assert float(out.delta.abs().max()) == 0.0
+    torch.nn.init.normal_(actor.correction_head[-1].weight, std=0.5)  # as if trained
+    chosen = out.edge.unsqueeze(-1)
+    # Change only the chosen edges' residuals and freeze the gates (their input changes too).
+    for gate in actor.encoder.gates:
+        gate.forward = lambda *args: torch.ones_like(args[3])
+    before = actor(graphs, *state, deterministic=True)
+    graphs.residuals = graphs.residuals.scatter_add(
+        1, chosen.unsqueeze(-1).expand(-1, -1, 3), torch.ones(4, 1, 3)
+    )
+    torch.manual_seed(0)
+    after = actor(graphs, *state, deterministic=True)
+    torch.testing.assert_close(before.encoding.nodes, after.encoding.nodes)
+    assert not torch.allclose(before.delta, after.delta)
+
+
+def test_critic_features_post_correction_residual_and_progress() -> None:
+    from agents.critic import corrected_residual, progress
+
+    graphs = random_graphs(2)
+    weights = torch.nn.functional.one_hot(torch.tensor([3, 9]), 10).float()  # 9 = the no-op
+    delta = torch.tensor([[0.1, -0.2, 3.0], [0.5, 0.5, 0.5]])
+    after = corrected_residual(graphs.residuals, weights, delta)
+    expected = graphs.residuals[0, 3] + delta[0]
+    expected[2] = expected[2] - 2 * math.pi * math.floor((expected[2] + math.pi) / (2 * math.pi))
+    torch.testing.assert_close(after[0], expected)
+    torch.testing.assert_close(after[1], delta[1])  # the no-op row has no residual
+    # 7 real edges, one processed; 6 selectable choices.
+    torch.testing.assert_close(
+        progress(graphs), torch.tensor([[6 / 7, math.log(7.0)], [6 / 7, math.log(7.0)]])
+    )
+
+
 # ----- config ---------------------------------------------------------------------------------
 
 
@@ -346,6 +397,38 @@ def test_loss_shapes_and_gradients_reach_every_group(transitions) -> None:
     out = loss(batch)
     out["loss_actor"].backward()
     assert all(p.grad is None or float(p.grad.abs().sum()) == 0 for p in loss.critic_parameters())
+
+
+def test_reward_scale_scales_the_reward_in_the_critic_target(transitions) -> None:
+    """c·r under scale c gives the same critic loss as reward c·r under scale 1, not as r."""
+    actor, rollout = transitions
+    batch = rollout.reshape(-1)[:12].clone()
+    reward = batch["next", "agents", "reward"].clone() + 0.05
+    losses = []
+    for scale, stored in ((3.0, reward), (1.0, 3.0 * reward), (1.0, reward)):
+        batch["next", "agents", "reward"] = stored
+        torch.manual_seed(0)
+        loss, _ = make_loss(actor, reward_scale=scale)
+        torch.manual_seed(1)
+        losses.append(loss(batch)["loss_qvalue"])
+    torch.testing.assert_close(losses[0], losses[1])
+    assert not torch.allclose(losses[0], losses[2])
+
+
+def test_critic_loss_has_no_gate_penalty(transitions) -> None:
+    actor, rollout = transitions
+    batch = rollout.reshape(-1)[:12]
+    torch.manual_seed(0)
+    with_penalty, _ = make_loss(actor, gate_l1=10.0)
+    torch.manual_seed(0)
+    without, _ = make_loss(actor, gate_l1=0.0)
+    without.load_state_dict(with_penalty.state_dict())
+    torch.manual_seed(1)
+    first = with_penalty(batch)
+    torch.manual_seed(1)
+    second = without(batch)
+    torch.testing.assert_close(first["loss_qvalue"], second["loss_qvalue"])
+    assert float(first["loss_actor"] - second["loss_actor"]) > 0  # the actor's gates pay it
 
 
 def test_target_network_moves_only_with_soft_update(transitions) -> None:
