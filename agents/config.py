@@ -86,6 +86,8 @@ class AlgorithmConfig:
             agents/checkpoints/README.md).
         huber_delta: the critic regresses its TD error with a Huber loss of this width (in
             scaled-reward units); None gives SAC's ½ δ² (paper: unspecified). See agents.loss.
+        critic_warmup_updates: updates during which only the critic and the temperatures
+            learn (the actor's loss is left out; 0 = SAC, the paper's).
         max_grad_norm: gradient clipping of every optimiser step.
     """
 
@@ -105,6 +107,7 @@ class AlgorithmConfig:
     gate_l1: float = 1e-3
     reward_scale: float = 100.0
     huber_delta: float | None = 1.0
+    critic_warmup_updates: int = 0
     max_grad_norm: float = 10.0
 
 
@@ -185,7 +188,13 @@ def _build(kind: type, values: dict[str, Any]) -> Any:
 # * gate_l1 1e-5 (default 1e-3): with 1e-3 the penalty's constant gradient dominates the actor's
 #   noisy Q-gradient on the gate parameters under Adam and shut every gate (mean z 0.86 → 0.01
 #   in 300 updates); with 1e-5 the gates stay open (0.8–0.9) unless the critic says otherwise;
-# * 16 updates per 128-frame batch (8 envs): updates, not frames, are the scarce resource.
+# * 16 updates per 128-frame batch (8 envs): updates, not frames, are the scarce resource;
+# * gamma 0.9 (paper 0.99) and 256 critic-only updates first: with γ = 0.99 the TD target is
+#   mostly the bootstrapped value of ~95 future steps, and after 656 updates the critic's Q still
+#   did not depend on the correction (std of Q over corrections 0.04 vs 3.3 for the true scaled
+#   immediate reward) while the actor, following it, drifted to a policy 3.7 % worse than the
+#   no-op on held-out F. Each step's reward telescopes to the episode's error reduction, so a
+#   shorter horizon keeps the objective's direction.
 CPU_SMALL = TrainConfig(
     model=ModelConfig(
         hidden=32,
@@ -209,6 +218,8 @@ CPU_SMALL = TrainConfig(
         tau=5e-3,
         alpha_lr=3e-3,
         gate_l1=1e-5,
+        gamma=0.9,
+        critic_warmup_updates=256,
     ),
     experiment=ExperimentConfig(
         num_envs=8,

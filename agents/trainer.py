@@ -4,7 +4,8 @@
     checkpoint.pt   latest state (agents.checkpoint); `resume=True` continues from it
     metrics.csv     one row per collector batch: frames, updates, episodes, episode_return (mean
                     over episodes finished in the batch of the per-agent-mean return), losses,
-                    temperatures, edge entropy, gate mean, and at eval points eval_f_reduction
+                    temperatures, edge entropy, mean log π(δ), mean Q of the taken actions,
+                    gate mean (last update of the batch), and at eval points eval_f_reduction
     learning_curve.png  episode return and held-out F reduction against frames
 
 Frames are counted as TorchRL does: one frame = one step of one environment of the batch (all
@@ -141,9 +142,19 @@ def restore(session: Session, path: Path) -> None:
 
 
 def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
-    """One GA-SAC step on a minibatch: the summed losses reach disjoint parameter groups."""
+    """One GA-SAC step on a minibatch: the summed losses reach disjoint parameter groups.
+
+    During the first `critic_warmup_updates` updates only the critic and the temperatures
+    learn: the actor's loss is left out, so the actor does not follow the gradient of a critic
+    that cannot yet tell one correction from another.
+    """
     out = session.loss(batch)
-    total = sum(out[key] for key in out.keys() if key.startswith("loss_"))
+    actor_learns = session.updates >= session.config.algorithm.critic_warmup_updates
+    total = sum(
+        out[key]
+        for key in out.keys()
+        if key.startswith("loss_") and (actor_learns or key != "loss_actor")
+    )
     for optimiser in session.optimisers.values():
         optimiser.zero_grad(set_to_none=True)
     total.backward()

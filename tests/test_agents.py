@@ -517,3 +517,24 @@ def test_tiny_training_run_checkpoints_and_resumes(tmp_path) -> None:
     (tmp_path / "broken.pt").write_text("not a checkpoint")
     with pytest.raises(CheckpointError, match="broken.pt"):
         load_actor(tmp_path / "broken.pt")
+
+
+def test_critic_warmup_leaves_the_actor_unchanged(transitions) -> None:
+    from agents.config import ExperimentConfig
+    from agents.trainer import build_session, optimise
+
+    experiment = ExperimentConfig(robots=3, poses_per_robot=10, num_envs=4, progress=False)
+    for warmup, actor_moves in ((5, False), (0, True)):
+        algorithm = AlgorithmConfig(critic_warmup_updates=warmup)
+        session = build_session(
+            TrainConfig(model=SMALL, algorithm=algorithm, experiment=experiment)
+        )
+        _, rollout = transitions
+        actor_before = {k: v.clone() for k, v in session.actor.state_dict().items()}
+        critic_before = session.loss.critic_network_params.clone()
+        optimise(session, rollout.reshape(-1)[:8])
+        moved = any(
+            not torch.equal(actor_before[k], v) for k, v in session.actor.state_dict().items()
+        )
+        assert moved == actor_moves
+        assert not (session.loss.critic_network_params == critic_before).all()
