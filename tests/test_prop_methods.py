@@ -68,6 +68,9 @@ def test_incremental_inference_equals_full_forward(problem) -> None:
 
     torch.manual_seed(1)
     actor = HybridActor(6, 11, TINY).eval()
+    # The correction head starts at the no-op (zero last layer): make the corrections non-zero
+    # so that the moved poses' neighbourhoods are really re-embedded.
+    torch.nn.init.normal_(actor.correction_head[-1].weight, std=0.5)
     n = problem.num_robots
     dims = Dimensions.of([problem])
     core = PGOCore(n, dims, 1, delta_max=TINY.delta_max, reward="F")
