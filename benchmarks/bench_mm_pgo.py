@@ -25,6 +25,7 @@ import argparse
 import time
 
 import numpy as np
+from reference import PUBLISHED_OPTIMA, gtsam_lm_seconds
 
 from baselines import mm_pgo
 from popbench import datasets
@@ -32,31 +33,11 @@ from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
 from popbench.outliers import with_outliers
 
-OPTIMA = {  # F_chordal* (SE-Sync convention), REFERENCES §6.2
-    "intel": 393.6525,
-    "mit": 61.1541,
-    "csail": 31.7037,
-    "m3500": 193.8623,
-    "city10k": 638.6246,
-}
-
-
-def gtsam_seconds(name: str) -> tuple[float, float]:
-    """Wall and CPU seconds GTSAM LM takes on dataset ``name`` (file initial estimate, prior on
-    pose 0)."""
-    import gtsam
-
-    graph, initial = gtsam.readG2o(str(datasets.dataset_path(name)), False)
-    graph.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
-    wall, cpu = time.perf_counter(), time.process_time()
-    gtsam.LevenbergMarquardtOptimizer(graph, initial, gtsam.LevenbergMarquardtParams()).optimize()
-    return time.perf_counter() - wall, time.process_time() - cpu
-
 
 def run(name: str, robots: int, init: str, iterations: int) -> Result:
     problem = DistributedProblem.from_graph(datasets.load(name), robots)
     result = mm_pgo.solve(problem, Budget(iterations=iterations), init=init)
-    gaps = result.history / OPTIMA[name] - 1.0
+    gaps = result.history / PUBLISHED_OPTIMA[name] - 1.0
     within = np.flatnonzero(gaps < 1e-3)
     first = str(within[0]) if within.size else "-"
     print(
@@ -73,7 +54,7 @@ def timing_row(name: str, iterations: int, repeats: int) -> str:
     problem = DistributedProblem.from_graph(datasets.load(name), 7)
     references, runs = [], []
     for _ in range(repeats):
-        references.append(gtsam_seconds(name))
+        references.append(gtsam_lm_seconds(name))
         cpu = time.process_time()
         result = mm_pgo.solve(problem, Budget(iterations=iterations), init="chordal")
         runs.append((result.wall_s, time.process_time() - cpu, result.parallel_s))

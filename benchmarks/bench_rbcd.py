@@ -26,41 +26,22 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from reference import PUBLISHED_OPTIMA, gtsam_lm_seconds  # noqa: E402
 
 from popbench import datasets  # noqa: E402
 from popbench.distributed import DistributedProblem  # noqa: E402
 from popbench.methods import Budget, Result, get_method  # noqa: E402
 
-OPTIMA = {  # F_chordal*, SE-Sync convention (REFERENCES §6.2, certified or recomputed)
-    "intel": 393.6525,
-    "mit": 61.1541,
-    "csail": 31.7037,
-    "m3500": 193.8623,
-    "city10k": 638.6246,
-}
 METHODS = ("cc-pgo", "ml-pgo")
 RATIO_DATASETS = ("m3500", "city10k")  # wall time compared with GTSAM LM at n = 7
 TOLERANCE = 1e-3
 
 
-def gtsam_lm_seconds(name: str, repeats: int = 3) -> float:
-    """Best of ``repeats`` wall times [s] of GTSAM LM (default parameters) on the dataset's file."""
-    import gtsam
-
-    graph, initial = gtsam.readG2o(str(datasets.dataset_path(name)), False)
-    prior = gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-6))
-    graph.add(gtsam.PriorFactorPose2(0, initial.atPose2(0), prior))
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        gtsam.LevenbergMarquardtOptimizer(
-            graph, initial, gtsam.LevenbergMarquardtParams()
-        ).optimize()
-        best = min(best, time.perf_counter() - start)
-    return best
+def best_gtsam_lm_seconds(name: str, repeats: int = 3) -> float:
+    """Best of ``repeats`` wall times [s] of GTSAM LM on the dataset's file."""
+    return min(gtsam_lm_seconds(name)[0] for _ in range(repeats))
 
 
 def first_within(history: np.ndarray, optimum: float) -> int | None:
@@ -76,7 +57,7 @@ def run(name: str, robots: int, method: str, iterations: int, init: str) -> Resu
 
 
 def row(name: str, robots: int, method: str, result: Result) -> str:
-    optimum = OPTIMA[name]
+    optimum = PUBLISHED_OPTIMA[name]
     gap = result.F_chordal / optimum - 1.0
     reached = first_within(result.history, optimum)
     return (
@@ -89,7 +70,7 @@ def row(name: str, robots: int, method: str, result: Result) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=1000)
-    parser.add_argument("--datasets", nargs="+", default=list(OPTIMA))
+    parser.add_argument("--datasets", nargs="+", default=list(PUBLISHED_OPTIMA))
     parser.add_argument("--robots", nargs="+", type=int, default=[3, 7, 35])
     parser.add_argument("--odometry", nargs="*", default=["intel", "mit", "m3500"])
     args = parser.parse_args()
@@ -104,14 +85,14 @@ def main() -> None:
     references: dict[str, float] = {}  # GTSAM LM, best of the timings before and after
     for name in args.datasets:
         timed = name in RATIO_DATASETS
-        before = gtsam_lm_seconds(name) if timed else np.inf
+        before = best_gtsam_lm_seconds(name) if timed else np.inf
         for robots in args.robots:
             for method in METHODS:
                 result = run(name, robots, method, args.iterations, "chordal")
                 results[name, robots, method] = result
                 print(row(name, robots, method, result), flush=True)
         if timed:
-            references[name] = min(before, gtsam_lm_seconds(name))
+            references[name] = min(before, best_gtsam_lm_seconds(name))
 
     print("\n## wall time / GTSAM LM time (n = 7)\n")
     print("| dataset | GTSAM LM s | method | wall_s | ratio |")
@@ -138,7 +119,7 @@ def main() -> None:
     for name in args.odometry:
         for method in METHODS:
             result = run(name, 7, method, args.iterations, "odometry")
-            gap = result.F_chordal / OPTIMA[name] - 1.0
+            gap = result.F_chordal / PUBLISHED_OPTIMA[name] - 1.0
             print(
                 f"| {name} | {method} | {result.history[0]:.4g} | {result.F:.4f} | "
                 f"{result.F_chordal:.4f} | "
