@@ -25,10 +25,13 @@ install: $(STAMP)
 run: $(STAMP)
 	$(VENV)/bin/popbench run table1
 
-test: $(STAMP)
+lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+
+test: lint
 	$(VENV)/bin/python -m pytest -q
 
+# Every benchmark with its default arguments, one after the other (long: full convergence tables).
 bench: $(STAMP)
-	$(VENV)/bin/python benchmarks/run_all.py
+	for script in benchmarks/bench_*.py; do $(VENV)/bin/python $$script || exit 1; done
