@@ -27,7 +27,6 @@ from torch_geometric.nn import MessagePassing
 from agents.config import ModelConfig
 from popbench.graph import EdgeKind
 
-KIND_COLUMNS = slice(0, 4)
 LOG_INFO_COLUMNS = slice(4, 7)
 INTER_LOOP_COLUMN = int(EdgeKind.INTER_LOOP)
 HARD_CONCRETE_STRETCH = (-0.1, 1.1)  # (a, b) of eq. minmax

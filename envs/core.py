@@ -167,25 +167,6 @@ class StepResult(NamedTuple):
     repaired: torch.Tensor
 
 
-_STATIC = (
-    "vertex_ids",
-    "node_mask",
-    "owned",
-    "log_degree",
-    "tails",
-    "heads",
-    "edge_ids",
-    "edge_mask",
-    "measurements",
-    "targets",
-    "kappa",
-    "tau",
-    "edge_attr",
-    "incident",
-    "num_edges",
-)
-
-
 class PGOCore:
     """The batched environment state and its dynamics (see the module docstring).
 
