@@ -12,7 +12,7 @@ import urllib.error
 from pathlib import Path
 
 import pytest
-from conftest import require_dataset
+from conftest import data_missing, require_dataset
 
 from popbench import cli, datasets
 
@@ -56,7 +56,7 @@ def test_unknown_dataset_is_one_line_listing_names() -> None:
 def test_wrong_checksum_is_one_line(tmp_path: Path) -> None:
     source = datasets.find("mit")
     if source is None:
-        pytest.skip("mit.g2o not available locally (set POPBENCH_DATA)")
+        data_missing("mit.g2o not available locally (set POPBENCH_DATA)")
     shutil.copy(source, tmp_path / "mit.g2o")
     with (tmp_path / "mit.g2o").open("a") as handle:
         handle.write("\n")
@@ -152,16 +152,7 @@ def test_version(capsys: pytest.CaptureFixture) -> None:
     assert capsys.readouterr().out.startswith("popbench ")
 
 
-def lm_available() -> bool:
-    try:
-        from popbench.solvers import lm
-    except ImportError:
-        return False
-    return hasattr(lm, "solve")
-
-
 @pytest.mark.dataset
-@pytest.mark.skipif(not lm_available(), reason="popbench.solvers.lm.solve not written yet")
 def test_solve_intel_json_reaches_the_reference_optimum() -> None:
     require_dataset("intel")
     run = popbench("solve", "intel", "--method", "lm", "--init", "chordal", "--json")
@@ -177,7 +168,6 @@ def test_solve_intel_json_reaches_the_reference_optimum() -> None:
 
 
 @pytest.mark.dataset
-@pytest.mark.skipif(not lm_available(), reason="popbench.solvers.lm.solve not written yet")
 def test_solve_prints_a_human_summary(capsys: pytest.CaptureFixture) -> None:
     require_dataset("mit")
     assert cli.main(["solve", "mit", "--iterations", "3", "--robots", "2"]) == 0
@@ -193,7 +183,6 @@ def test_datasets_list_shows_every_name(capsys: pytest.CaptureFixture) -> None:
 
 @pytest.mark.dataset
 def test_solve_json_record_with_a_distributed_method(capsys: pytest.CaptureFixture) -> None:
-    pytest.importorskip("baselines.mm_pgo")
     require_dataset("mit")
     args = ["solve", "mit", "--method", "mm-pgo", "--robots", "3", "--iterations", "5", "--json"]
     assert cli.main([*args, "--init", "chordal"]) == 0

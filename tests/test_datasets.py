@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import require_dataset
+from conftest import data_missing, require_dataset
 
 from popbench import datasets
 from popbench.errors import DatasetError
@@ -25,7 +25,7 @@ def source_dir() -> Path:
         return Path(CONFIGURED)
     if (SHARED / "mit.g2o").is_file():
         return SHARED
-    pytest.skip("no local dataset folder (set POPBENCH_DATA)")
+    data_missing("no local dataset folder (set POPBENCH_DATA)")
 
 
 @pytest.fixture
@@ -66,7 +66,7 @@ def test_registry_covers_the_paper_and_links_ground_truth() -> None:
 def test_registry_matches_the_pinned_checksum_list() -> None:
     sums = source_dir() / "SHA256SUMS"
     if not sums.is_file():
-        pytest.skip(f"{sums} not found")
+        data_missing(f"{sums} not found")
     pinned = dict(reversed(line.split()) for line in sums.read_text().splitlines())
     registered = {e.filename: e.sha256 for e in datasets.DATASETS.values()}
     assert registered == pinned

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from functools import cache
 
+import gtsam  # test-only dependency (pyproject [test]); it has no __version__
 import numpy as np
 import pytest
 from conftest import require_dataset
@@ -27,8 +28,6 @@ from conftest import require_dataset
 from popbench import datasets, objective
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.solvers.lm import solve_graph
-
-gtsam = pytest.importorskip("gtsam")  # test-only dependency; it has no __version__
 
 pytestmark = pytest.mark.dataset
 

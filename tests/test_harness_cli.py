@@ -64,7 +64,7 @@ def test_killed_run_recomputes_no_finished_cell(tmp_path, mit):
         "--methods",
         "cc-pgo,ml-pgo,lm",
         "--iterations",
-        "40",
+        "200",  # ≥ 0.5 s per baseline cell on mit: far longer than the 50 ms poll and the kill
         "--out",
         str(tmp_path),
     )

@@ -27,7 +27,6 @@ from popbench.cli import main, train_config
 from popbench.errors import ValueRangeError
 from popbench.io import write_g2o
 from popbench.methods import Budget, get_method
-from popbench.solvers.lm import solve_graph
 from popbench.synthetic import make_problem
 
 TINY = ModelConfig(
@@ -135,14 +134,29 @@ def test_prop_v1_result_fields(problem, tiny_checkpoint: Path) -> None:
     assert result.messages > 0
 
 
-def test_prop_v2_not_worse_than_prop_v1(problem, tiny_checkpoint: Path) -> None:
+def gtsam_optimum(graph, tmp_path: Path) -> np.ndarray:
+    """GTSAM's Levenberg–Marquardt optimum of ``graph`` (written to g2o and read back by GTSAM),
+    from the ground truth, pose 0 held by a tight prior: the independent reference."""
+    import gtsam
+
+    path = tmp_path / "reference.g2o"
+    write_g2o(graph.replace(poses=graph.ground_truth), path)
+    factors, initial = gtsam.readG2o(str(path), False)
+    prior = gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-9))
+    factors.add(gtsam.PriorFactorPose2(0, initial.atPose2(0), prior))
+    values = gtsam.LevenbergMarquardtOptimizer(factors, initial).optimize()
+    poses = [values.atPose2(i) for i in range(graph.num_poses)]
+    return np.array([[pose.x(), pose.y(), pose.theta()] for pose in poses])
+
+
+def test_prop_v2_reaches_the_gtsam_optimum(problem, tiny_checkpoint: Path, tmp_path) -> None:
     v1 = solve_prop_v1(problem, Budget(), checkpoint=tiny_checkpoint)
     v2 = solve_prop_v2(problem, Budget(), checkpoint=tiny_checkpoint)
     assert v2.extras["F_prop_v1"] == pytest.approx(v1.F)
-    assert v2.F <= v1.F + 1e-12
-    # The independent reference: LM run to convergence from the ground truth.
-    optimum = solve_graph(problem.graph, problem.graph.ground_truth, iterations=200).F
-    assert v2.F == pytest.approx(optimum, rel=1e-3)
+    # GTSAM minimises Σ‖Logmap‖²_Λ, whose translation error differs from eq. 1's at second
+    # order in the residual, so F at its optimum is within round-off of F*, from above.
+    reference = objective.objective(problem.graph, gtsam_optimum(problem.graph, tmp_path))
+    assert v2.F == pytest.approx(reference, rel=1e-4)
 
 
 def test_registry_and_init_options(problem, tiny_checkpoint: Path) -> None:
@@ -156,11 +170,13 @@ def test_registry_and_init_options(problem, tiny_checkpoint: Path) -> None:
 def test_replication_to_35_robots_without_retraining(tiny_checkpoint: Path) -> None:
     """The same (n-agnostic) actor serves a 35-robot team."""
     big = make_problem(robots=35, noise="V2", poses_per_robot=8, seed=2)
-    checkpoint = DEFAULT_CHECKPOINT if DEFAULT_CHECKPOINT.is_file() else tiny_checkpoint
-    result = solve_prop_v1(big, Budget(), checkpoint=checkpoint, consensus_iterations=20)
+    result = solve_prop_v1(big, Budget(), checkpoint=DEFAULT_CHECKPOINT, consensus_iterations=20)
     assert result.poses.shape == (big.graph.num_poses, 3)
-    assert np.isfinite(result.F)
     assert result.inlier_mask.shape == (big.graph.num_edges,)
+    # Every one of the 35 replicated actors processed all its local edges …
+    assert result.iterations == max(local.graph.num_edges for local in big.local_graphs)
+    # … and the team's estimate improved on the start (consensus included).
+    assert result.F < 0.5 * objective.objective(big.graph, big.graph.poses)
 
 
 def test_cli_solve_prop_v1_json(problem, tiny_checkpoint: Path, tmp_path: Path, capsys) -> None:
