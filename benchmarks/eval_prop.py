@@ -13,7 +13,11 @@ episodes than they ran). For each problem, from its odometry start:
                  what prop-v1 gets without its actor;
     random       a random policy (uniform unprocessed edge, uniform δ in [−Δmax, Δmax]) for the
                  same episode, then the same consensus;
-    prop-v1      the trained actor's episode, then the same consensus.
+    prop-v1      the trained actor's episode, then the same consensus;
+and two bounds on what *any* local policy could add before the same consensus:
+    local-opt    every robot's local graph solved to its own optimum (`lm`, 100 iterations,
+                 from its starting copies, local vertex 0 fixed), then the consensus;
+    truth        the ground-truth poses as every robot's copies, then the consensus.
 Reported: mean and median of F and of the ground-truth localisation error (ATE: RMS position
 error [m] after the least-squares rigid SE(2) alignment of the estimate to the ground truth), and
 how often each beats the initial estimate.
@@ -86,6 +90,20 @@ def random_policy_copies(problem, delta_max: np.ndarray, rng: np.random.Generato
     return core.local_poses(0)
 
 
+def local_optima(problem) -> list[np.ndarray]:
+    """Every robot's copies moved to its local graph's own optimum (`lm` from the copies,
+    local vertex 0 fixed): the most a policy that lowers local F could reach."""
+    from popbench.solvers.lm import solve_graph
+
+    copies = problem.split()
+    optima = []
+    for robot, start in enumerate(copies):
+        local = problem.local_graph(robot)
+        assert np.array_equal(local.global_ids, problem.local_vertices(robot))
+        optima.append(solve_graph(local.graph, start, iterations=100).poses)
+    return optima
+
+
 def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
     actor, _ = load_actor(checkpoint)
     delta_max = actor.delta_max.numpy().astype(np.float64)
@@ -98,6 +116,8 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
         "consensus": [],
         "random": [],
         "prop-v1": [],
+        "local-opt": [],
+        "truth": [],
     }
     started = time.perf_counter()
     for seed in seeds:
@@ -114,6 +134,8 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
             "random", admm_consensus(problem, random_policy_copies(problem, delta_max, rng)).poses
         )
         record("prop-v1", solve_prop_v1(problem, Budget(), checkpoint=checkpoint).poses)
+        record("local-opt", admm_consensus(problem, local_optima(problem)).poses)
+        record("truth", admm_consensus(problem, problem.split(truth)).poses)
     print(
         f"\n{problems} held-out synthetic V2 problems, n = {robots}, 60 poses/robot "
         f"(seeds {seeds[0]}..{seeds[-1]}; {time.perf_counter() - started:.0f} s)"
