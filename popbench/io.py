@@ -12,6 +12,7 @@ composition of their edges (:func:`popbench.graph.odometry_composition`).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import NamedTuple
 
@@ -52,21 +53,48 @@ def _wrap_out_of_range(theta: np.ndarray) -> np.ndarray:
     return np.where((theta >= -np.pi) & (theta < np.pi), theta, se2.wrap(theta))
 
 
+# Field names after the tag, per tag (for messages).
+_FIELDS = {
+    "VERTEX_SE2": ("id", "x", "y", "theta"),
+    "VERTEX2": ("id", "x", "y", "theta"),
+    "EDGE_SE2": ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33"),
+    "EDGE2": ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I22", "I33", "I13", "I23"),
+}
+MAX_VERTEX_ID = 2**31 - 1
+
+
 def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: str) -> list[float]:
     if len(tokens) != count:
         raise DataFormatError(
             path, lineno, f"{tag} needs {count - 1} values after the tag, found {len(tokens) - 1}"
         )
-    try:
-        values = [float(token) for token in tokens[1:]]
-    except ValueError as error:
-        raise DataFormatError(path, lineno, f"{tag}: {error}") from None
-    if not all(np.isfinite(values)):
-        raise DataFormatError(path, lineno, f"{tag}: non-finite value")
-    for k in (0, 1) if tag.startswith("EDGE") else (0,):
+    fields = _FIELDS[tag]
+    values = []
+    for k, token in enumerate(tokens[1:]):
+        try:
+            value = float(token)
+        except ValueError:
+            message = f"{tag} field {fields[k]} (value {k + 1} of {count - 1}) is {token!r}: "
+            raise DataFormatError(path, lineno, message + "expected a number") from None
+        if not math.isfinite(value):
+            message = f"{tag} field {fields[k]} (value {k + 1} of {count - 1}) is non-finite"
+            raise DataFormatError(path, lineno, f"{message} ({token!r})")
+        values.append(value)
+    ids = (0, 1) if tag.startswith("EDGE") else (0,)
+    for k in ids:
         if values[k] != int(values[k]) or values[k] < 0:
             message = f"{tag}: vertex id {tokens[k + 1]!r} is not an integer ≥ 0"
             raise DataFormatError(path, lineno, message)
+        if values[k] > MAX_VERTEX_ID:
+            allowed = f"0 to {MAX_VERTEX_ID}"
+            message = f"{tag}: vertex id {tokens[k + 1]!r} is out of range ({allowed})"
+            raise DataFormatError(path, lineno, message)
+    if len(ids) == 2 and values[0] == values[1]:
+        message = (
+            f"{tag} joins vertex {int(values[0])} to itself "
+            "(pose-graph edges join two different poses)"
+        )
+        raise DataFormatError(path, lineno, message)
     return values
 
 
@@ -114,26 +142,57 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
     )
 
 
-def _vertex_poses(path: Path, lines: _Lines, num_poses: int) -> np.ndarray:
-    """``(num_poses, 3)`` poses from VERTEX lines whose ids must be exactly 0 … num_poses − 1."""
+def _vertex_poses(path: Path, lines: _Lines) -> np.ndarray:
+    """``(V, 3)`` poses from the ``V`` VERTEX lines, whose ids must be exactly 0 … V − 1."""
     ids = lines.vertices[:, 0].astype(np.int64)
     order = np.argsort(ids, kind="stable")
     repeated = np.flatnonzero(np.diff(ids[order]) == 0)
     if repeated.size:
         k = order[repeated[0] + 1]
         raise DataFormatError(path, int(lines.vertex_lines[k]), f"vertex id {ids[k]} repeated")
-    missing = np.setdiff1d(np.arange(num_poses), ids)
-    if missing.size:
+    num_poses = ids.size
+    beyond = np.flatnonzero(ids >= num_poses)  # unique ids: some id below V is then missing
+    if beyond.size:
+        k = int(beyond[0])
+        missing = np.setdiff1d(np.arange(num_poses), ids)
         raise DataFormatError(
             path,
-            int(lines.vertex_lines[-1]) if lines.vertex_lines.size else 0,
+            int(lines.vertex_lines[k]),
             f"vertex ids must be contiguous from 0: no VERTEX line for id {int(missing[0])} "
-            f"({missing.size} of {num_poses} missing)",
+            f"({missing.size} of 0–{num_poses - 1} missing) but one for id {ids[k]}",
         )
     poses = np.zeros((num_poses, 3))
     poses[ids] = lines.vertices[:, 1:4]
     poses[:, 2] = _wrap_out_of_range(poses[:, 2])
     return poses
+
+
+def _check_edge_ids(
+    path: Path, tag: str, lines: _Lines, tails: np.ndarray, heads: np.ndarray
+) -> None:
+    """Every edge endpoint must have a VERTEX line (ids 0 … V − 1); in a file without VERTEX
+    lines every id from 0 to the largest must be an endpoint of some edge (else that pose would
+    be undefined)."""
+    if lines.vertices.size:
+        num_poses = lines.vertices.shape[0]
+        reason = f"which has no VERTEX line (ids 0–{num_poses - 1})"
+    else:
+        used = np.unique(np.concatenate([tails, heads]))
+        num_poses = used.size  # ids 0 … max all used ⟺ max < number of distinct ids
+        if int(used[-1]) < num_poses:
+            return
+        gap = int(np.setdiff1d(np.arange(num_poses), used)[0])
+        reason = (
+            f"but no edge references vertex {gap} and the file has no VERTEX lines, "
+            "so that pose would be undefined"
+        )
+    bad = np.flatnonzero((tails >= num_poses) | (heads >= num_poses))
+    if bad.size:
+        k = int(bad[0])
+        vertex = int(tails[k] if tails[k] >= num_poses else heads[k])
+        raise DataFormatError(
+            path, int(lines.edge_lines[k]), f"{tag} references vertex {vertex}, {reason}"
+        )
 
 
 def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
@@ -156,11 +215,12 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
     _check_information(path, information, lines.edge_lines)
 
-    num_poses = int(max(tails.max(), heads.max())) + 1
     if lines.vertices.size:
-        num_poses = max(num_poses, int(lines.vertices[:, 0].max()) + 1)
-        poses = _vertex_poses(path, lines, num_poses)
+        poses = _vertex_poses(path, lines)
+        _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
     else:
+        _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
+        num_poses = int(max(tails.max(), heads.max())) + 1
         poses = odometry_composition(num_poses, tails, heads, measurements)
     return make_graph(poses, tails, heads, measurements, information, name=name or path.stem)
 
@@ -177,7 +237,7 @@ def read_vertices(path: str | Path) -> np.ndarray:
     lines = _scan(path, fmt, parse_edges=False)
     if not lines.vertices.size:
         raise DataFormatError(path, 0, f"no {_FORMATS[fmt][0]} lines")
-    return _vertex_poses(path, lines, int(lines.vertices[:, 0].max()) + 1)
+    return _vertex_poses(path, lines)
 
 
 def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:

@@ -139,10 +139,38 @@ def test_read_vertices_matches_read_graph(small_graph, tmp_path: Path) -> None:
     ("text", "line", "phrase"),
     [
         (VERTICES + "EDGE_SE2 0 1 1.0 0.0 0.1 10 0 0 10 0\n", 3, "needs 11 values"),
-        (VERTICES + "EDGE_SE2 0 1 1.0 zero 0.1 10 0 0 10 0 10\n", 3, "zero"),
+        (
+            VERTICES + "EDGE_SE2 0 1 1.0 zero 0.1 10 0 0 10 0 10\n",
+            3,
+            "EDGE_SE2 field dy (value 4 of 11) is 'zero': expected a number",
+        ),
+        ("VERTEX_SE2 0 0 abc 0\n" + EDGE + "\n", 1, "field y (value 3 of 4) is 'abc'"),
         (VERTICES + EDGE + "\nEDGE_SE3 0 1 1 2 3\n", 4, "unknown tag 'EDGE_SE3'"),
         (VERTICES + "\n" + EDGE.replace("10 0 10", "10 0 -1") + "\n", 4, "not positive definite"),
-        (VERTICES + EDGE.replace("1.0", "nan") + "\n", 3, "non-finite"),
+        (VERTICES + EDGE.replace("1.0", "nan") + "\n", 3, "field dx (value 3 of 11) is non-finite"),
+        (VERTICES + EDGE[:-2] + "inf" + "\n", 3, "field I33 (value 11 of 11) is non"),
+        # An edge to a vertex without a VERTEX line is reported on the edge's line.
+        (
+            VERTICES + "VERTEX_SE2 2 2 0 0\n" + EDGE + "\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n"
+            "EDGE_SE2 0 7 1 0 0 1 0 0 1 0 1\n",
+            6,
+            "EDGE_SE2 references vertex 7, which has no VERTEX line (ids 0–2)",
+        ),
+        (VERTICES + "EDGE_SE2 9 0 1 0 0 1 0 0 1 0 1\n", 3, "references vertex 9, which has no"),
+        # Huge ids: a range error, never a MemoryError.
+        (VERTICES + "VERTEX_SE2 1e12 0 0 0\n" + EDGE + "\n", 3, "'1e12' is out of range"),
+        (VERTICES + EDGE.replace("0 1 1.0", "0 1e12 1.0") + "\n", 3, "'1e12' is out of range"),
+        (
+            VERTICES + "VERTEX_SE2 2000000000 0 0 0\n" + EDGE + "\n",
+            3,
+            "no VERTEX line for id 2 (1 of 0–2 missing) but one for id 2000000000",
+        ),
+        (
+            EDGE + "\nEDGE_SE2 1 2000000000 1 0 0 1 0 0 1 0 1\n",
+            2,
+            "references vertex 2000000000, but no edge references vertex 2 and the file has no",
+        ),
+        (VERTICES + EDGE.replace("0 1 1.0", "1 1 1.0") + "\n", 3, "joins vertex 1 to itself"),
         (VERTICES + EDGE.replace("0 1 1.0", "0 -1 1.0") + "\n", 3, "not an integer"),
         (VERTICES + EDGE.replace("0 1 1.0", "0 1.5 1.0") + "\n", 3, "not an integer"),
         ("VERTEX_SE2 0 0 0\n" + EDGE + "\n", 1, "needs 4 values"),
