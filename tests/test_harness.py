@@ -147,3 +147,117 @@ def test_scalability_and_trajectory_figures(tmp_path):
     csv = tmp_path / "metrics.csv"
     pd.DataFrame({"frames": [0, 10], "episode_return": [-1.0, -0.5]}).to_csv(csv, index=False)
     assert all(p.stat().st_size > 1000 for p in plot_learning_curves([csv], tmp_path / "lc"))
+
+
+# ----- cache keys: what a cell is computed from -------------------------------------------------
+
+
+def _ring(path, n=8, dx="0.77"):
+    """A tiny g2o ring: n poses, n odometry edges (the last closes the loop); ``dx`` is the
+    forward measurement of the first edge (the others measure 0.77)."""
+    lines = [f"VERTEX_SE2 {i} {np.cos(i):.3f} {np.sin(i):.3f} 0" for i in range(n)]
+    lines += [
+        f"EDGE_SE2 {i} {(i + 1) % n} {dx if i == 0 else 0.77} 0.01 0.8 100 0 0 100 0 400"
+        for i in range(n)
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _specs(experiment, dataset, method="mm-pgo"):
+    """The cell specifications of one cell of ``experiment`` on ``dataset``."""
+    from popbench.harness import outliers, scalability, table1
+
+    if experiment == "table1":
+        return table1.cell_specs(
+            table1.Table1Config(datasets=(dataset,), robots=(1,), methods=(method,))
+        ) + [table1.optimum_spec(dataset)]
+    if experiment == "outliers":
+        return outliers.cell_specs(
+            outliers.OutliersConfig(datasets=(dataset,), robots=1, methods=(method,), seeds=(0,))
+        )
+    return scalability.cell_specs(
+        scalability.ScalabilityConfig(dataset=dataset, robots=(1,), methods=(method,))
+    ) + [table1.optimum_spec(dataset)]
+
+
+@pytest.mark.parametrize("experiment", ["table1", "outliers", "scalability"])
+def test_cell_keys_change_when_the_graph_file_changes(tmp_path, experiment):
+    graph = _ring(tmp_path / "u.g2o")
+    before = [cell_key(spec) for spec in _specs(experiment, str(graph))]
+    assert before == [cell_key(spec) for spec in _specs(experiment, str(graph))]  # stable
+    _ring(graph, dx="0.951")  # one measurement edited (and the size changed)
+    after = [cell_key(spec) for spec in _specs(experiment, str(graph))]
+    assert not set(before) & set(after)
+
+
+def test_registered_datasets_are_keyed_by_their_pinned_sha256():
+    from popbench import datasets
+
+    for spec in _specs("table1", "mit"):
+        assert spec["dataset_sha256"] == datasets.DATASETS["mit"].sha256
+
+
+def test_source_fingerprint_follows_the_code_not_git(tmp_path):
+    from popbench import __version__
+    from popbench.harness.cache import code_fingerprint, source_fingerprint
+
+    package = tmp_path / "pkg"  # no git repository anywhere under tmp_path
+    (package / "sub").mkdir(parents=True)
+    (package / "a.py").write_text("x = 1\n")
+    (package / "sub" / "b.py").write_text("y = 2\n")
+    first = source_fingerprint([package])
+    (package / "notes.md").write_text("docs do not count\n")
+    assert source_fingerprint([package]) == first
+    (package / "sub" / "b.py").write_text("y = 3\n")
+    assert source_fingerprint([package]) != first
+    assert code_fingerprint().startswith(f"{__version__}+")
+    assert {spec["code"] for spec in _specs("table1", "mit")} == {code_fingerprint()}
+
+
+def test_code_fingerprint_changes_the_cell_keys(monkeypatch):
+    from popbench.harness import cache
+
+    before = [cell_key(spec) for spec in _specs("outliers", "mit")]
+    monkeypatch.setattr(cache, "code_fingerprint", lambda: "0.1.0+edited")
+    after = [cell_key(spec) for spec in _specs("outliers", "mit")]
+    assert not set(before) & set(after)
+
+
+@pytest.mark.parametrize("method", ["prop-v1", "prop-v2"])
+def test_learned_cells_are_keyed_by_the_actor_checkpoint(tmp_path, monkeypatch, method):
+    from popbench.harness import cache
+
+    checkpoint = tmp_path / "actor.pt"
+    checkpoint.write_bytes(b"weights one")
+    monkeypatch.setattr(cache, "checkpoint_path", lambda: checkpoint)
+    before = cell_key(_specs("table1", "mit", method)[0])
+    checkpoint.write_bytes(b"weights two, retrained")
+    assert cell_key(_specs("table1", "mit", method)[0]) != before
+    assert "checkpoint_sha256" not in _specs("table1", "mit", "mm-pgo")[0]
+
+
+@pytest.mark.slow  # imports torch
+def test_checkpoint_path_is_the_one_the_learned_methods_load():
+    from agents.methods import DEFAULT_CHECKPOINT
+    from popbench.harness.cache import checkpoint_path
+
+    assert checkpoint_path() == DEFAULT_CHECKPOINT
+
+
+def test_fresh_recomputes_cached_cells(tmp_path):
+    specs = [{"dataset": "d", "robots": n} for n in range(3)]
+    computed = []
+
+    def compute(spec):
+        computed.append(spec["robots"])
+        return {"F": float(len(computed))}
+
+    cache = CellCache(tmp_path / "cells")
+    run_cells(specs, compute, cache, progress=False)
+    run_cells(specs, compute, cache, progress=False)
+    assert computed == [0, 1, 2]
+    rows = run_cells(specs, compute, cache, progress=False, fresh=True)
+    assert computed == [0, 1, 2, 0, 1, 2]
+    assert [row["F"] for row in rows] == [4.0, 5.0, 6.0]
+    assert [cache.get(spec)["F"] for spec in specs] == [4.0, 5.0, 6.0]  # overwritten

@@ -1,24 +1,106 @@
 """Finished table cells, one JSON file each, so an interrupted run resumes where it stopped.
 
 A cell is identified by the canonical JSON of its specification (experiment, dataset, robots,
-method, seed, iterations, initial estimate, options); its file name is a hash of that JSON and
-the file holds both the specification and the measured row.
+method, seed, iterations, initial estimate, options) and of what it was computed from: the
+sha256 of the dataset file (:func:`dataset_sha256`), the code (:func:`code_fingerprint`) and,
+for the learned methods, the sha256 of the actor checkpoint (:func:`checkpoint_sha256`). Its
+file name is a hash of that JSON and the file holds both the specification and the measured
+row. A changed input file, code or checkpoint therefore gives a new key and the cell is
+recomputed; the old file is left in the folder, unused.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
+
+# The packages whose code computes a cell: the core, the baselines, the agents and their envs.
+CODE_PACKAGES = ("popbench", "baselines", "agents", "envs")
+# The methods that read the actor checkpoint (agents.methods.DEFAULT_CHECKPOINT).
+LEARNED_METHODS = ("prop-v1", "prop-v2")
+CHECKPOINT = ("checkpoints", "actor-V2-n7.pt")  # relative to the agents package
 
 
 def cell_key(spec: Mapping[str, Any]) -> str:
     """A stable 16-hex-digit key of a cell specification."""
     canonical = json.dumps(spec, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+
+
+def _package_dir(name: str) -> Path | None:
+    """The folder of an importable package, found without importing it (no torch at startup)."""
+    try:
+        found = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    if found is None or not found.submodule_search_locations:
+        return None
+    return Path(next(iter(found.submodule_search_locations)))
+
+
+def source_fingerprint(folders: Iterable[Path | None]) -> str:
+    """sha256 (16 hex digits) of every ``*.py`` file under ``folders``: names and contents.
+
+    Independent of git (a checkout with uncommitted edits, an sdist or a wheel all work) and
+    unchanged by commits that touch only docs, results or tests.
+    """
+    digest = hashlib.sha256()
+    for folder in folders:
+        if folder is None:
+            continue
+        folder = Path(folder)
+        for path in sorted(folder.rglob("*.py")):
+            digest.update(f"{folder.name}/{path.relative_to(folder).as_posix()}\0".encode())
+            digest.update(path.read_bytes())
+            digest.update(b"\0")
+    return digest.hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """``VERSION+SOURCEHASH``: the package version and :func:`source_fingerprint` of
+    :data:`CODE_PACKAGES` (computed once per process; about 600 kB of source)."""
+    from popbench import __version__
+
+    return f"{__version__}+{source_fingerprint(_package_dir(p) for p in CODE_PACKAGES)}"
+
+
+def dataset_sha256(dataset: str) -> str:
+    """sha256 of the file that :func:`popbench.datasets.load` reads for ``dataset``: the pinned
+    checksum of a registered name (the loader refuses any other file), else the file's own."""
+    from popbench import datasets
+
+    if dataset in datasets.DATASETS:
+        return datasets.DATASETS[dataset].sha256
+    return datasets.file_sha256(Path(dataset).expanduser())
+
+
+def checkpoint_path() -> Path | None:
+    """The actor checkpoint that prop-v1/prop-v2 load (agents.methods.DEFAULT_CHECKPOINT)."""
+    folder = _package_dir("agents")
+    return None if folder is None else folder.joinpath(*CHECKPOINT)
+
+
+def checkpoint_sha256() -> str | None:
+    """sha256 of :func:`checkpoint_path`, or None when there is no such file."""
+    from popbench.datasets import file_sha256
+
+    path = checkpoint_path()
+    return file_sha256(path) if path is not None and path.is_file() else None
+
+
+def provenance(dataset: str, method: str | None = None) -> dict[str, Any]:
+    """What a cell on ``dataset`` with ``method`` was computed from, for its specification."""
+    inputs: dict[str, Any] = {"code": code_fingerprint(), "dataset_sha256": dataset_sha256(dataset)}
+    if method in LEARNED_METHODS:
+        inputs["checkpoint_sha256"] = checkpoint_sha256()
+    return inputs
 
 
 class CellCache:

@@ -17,7 +17,7 @@ import pandas as pd
 
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, reports
-from popbench.harness.cache import CellCache
+from popbench.harness.cache import CellCache, provenance
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table2_cell
 from popbench.harness.runner import Spec, run_cells
@@ -47,6 +47,7 @@ class OutliersConfig:
 def cell_specs(config: OutliersConfig) -> list[Spec]:
     return [
         {
+            **provenance(dataset, method),
             "experiment": "outliers",
             "dataset": dataset,
             "rate": rate,
@@ -110,11 +111,16 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
     }
 
 
-def run_outliers(config: OutliersConfig, *, progress: bool = True) -> pd.DataFrame:
-    """Compute (or reuse) every cell; write ``outliers.csv``, ``.md``, ``.tex`` and the manifest."""
+def run_outliers(
+    config: OutliersConfig, *, progress: bool = True, fresh: bool = False
+) -> pd.DataFrame:
+    """Compute (or reuse; all recomputed if ``fresh``) every cell; write ``outliers.csv``,
+    ``.md``, ``.tex`` and the manifest. The datasets and team size are checked first."""
     started = time.perf_counter()
+    problems.check_inputs(config.datasets, (config.robots,))
+    specs = cell_specs(config)
     rows = run_cells(
-        cell_specs(config), compute_cell, CellCache(config.out / "cells"), progress=progress
+        specs, compute_cell, CellCache(config.out / "cells"), progress=progress, fresh=fresh
     )
     frame = pd.DataFrame(rows)
     paper = [

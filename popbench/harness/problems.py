@@ -2,30 +2,74 @@
 
 The initial estimate of a table (``init``) is applied to every method alike: the problem's
 ``graph.poses`` holds it and every method is run with ``init="problem"``.
+
+Each result is remembered per dataset *and* the sha256 of its file, so a graph file edited
+while the process runs is read again rather than served from memory.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from functools import lru_cache
 
 from popbench import datasets
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
+from popbench.harness.cache import dataset_sha256
 
 INITS = ("odometry", "chordal")
 
 
-@lru_cache(maxsize=16)
+def _sha(dataset: str) -> str | None:
+    """The file's sha256, or None when there is no such file (the loader then says why)."""
+    try:
+        return dataset_sha256(dataset)
+    except OSError:
+        return None
+
+
 def load_graph(dataset: str) -> PoseGraph:
     """The dataset's graph (a registered name or a path), its poses the file's estimate."""
+    return _load_graph(dataset, _sha(dataset))
+
+
+def initial_poses(dataset: str, init: str):  # noqa: ANN201 - (N, 3) ndarray
+    """The ``init`` estimate of a dataset: ``odometry`` composition or ``chordal``."""
+    return _initial_poses(dataset, _sha(dataset), init)
+
+
+def distributed_problem(
+    dataset: str, robots: int, init: str, partition: str = "metis", seed: int = 0
+) -> DistributedProblem:
+    """The dataset split among ``robots`` robots, starting from the ``init`` estimate."""
+    return _distributed_problem(dataset, _sha(dataset), robots, init, partition, seed)
+
+
+def optimum(dataset: str) -> float:
+    """F* of a dataset: the best F that the project's LM reaches from chordal initialisation."""
+    return _optimum(dataset, _sha(dataset))
+
+
+def check_inputs(names: Iterable[str], robots: Iterable[int], option: str = "--robots") -> None:
+    """Before anything is computed: load every dataset with the loader the cells use (raising
+    its one-line DatasetError or DataFormatError) and check that every team size is at most
+    the dataset's number of poses (ValueRangeError)."""
+    poses = {name: load_graph(name).num_poses for name in names}  # every file first
+    most = max(robots)
+    for name, count in poses.items():
+        if most > count:
+            raise ValueRangeError(option, most, f"integers ≤ {count} (the poses of {name})")
+
+
+@lru_cache(maxsize=16)
+def _load_graph(dataset: str, sha256: str | None) -> PoseGraph:
     return datasets.load(dataset)
 
 
 @lru_cache(maxsize=16)
-def initial_poses(dataset: str, init: str):  # noqa: ANN201 - (N, 3) ndarray
-    """The ``init`` estimate of a dataset: ``odometry`` composition or ``chordal``."""
-    graph = load_graph(dataset)
+def _initial_poses(dataset: str, sha256: str | None, init: str):  # noqa: ANN202
+    graph = _load_graph(dataset, sha256)
     if init == "odometry":
         return graph.odometry_initial()
     if init == "chordal":
@@ -36,19 +80,17 @@ def initial_poses(dataset: str, init: str):  # noqa: ANN201 - (N, 3) ndarray
 
 
 @lru_cache(maxsize=32)
-def distributed_problem(
-    dataset: str, robots: int, init: str, partition: str = "metis", seed: int = 0
+def _distributed_problem(
+    dataset: str, sha256: str | None, robots: int, init: str, partition: str, seed: int
 ) -> DistributedProblem:
-    """The dataset split among ``robots`` robots, starting from the ``init`` estimate."""
-    graph = load_graph(dataset).replace(poses=initial_poses(dataset, init))
+    graph = _load_graph(dataset, sha256).replace(poses=_initial_poses(dataset, sha256, init))
     return DistributedProblem.from_graph(
         graph, robots, partition=partition, seed=seed, initial=init
     )
 
 
 @lru_cache(maxsize=16)
-def optimum(dataset: str) -> float:
-    """F* of a dataset: the best F that the project's LM reaches from chordal initialisation."""
+def _optimum(dataset: str, sha256: str | None) -> float:
     from popbench.solvers.lm import reference_optimum
 
-    return float(reference_optimum(load_graph(dataset)).F)
+    return float(reference_optimum(_load_graph(dataset, sha256)).F)

@@ -41,10 +41,12 @@ def run_cells(
     *,
     console: Console | None = None,
     progress: bool = True,
+    fresh: bool = False,
 ) -> list[Row]:
     """Rows of all ``specs`` in order: cached rows are reused, the others computed and cached
-    one by one (so an interrupted run loses at most the cell in flight)."""
-    rows: list[Row | None] = [cache.get(spec) for spec in specs]
+    one by one (so an interrupted run loses at most the cell in flight). ``fresh`` ignores the
+    cache: every cell is recomputed and its cached file overwritten."""
+    rows: list[Row | None] = [None if fresh else cache.get(spec) for spec in specs]
     todo = [k for k, row in enumerate(rows) if row is None]
     console = console or Console(stderr=True)
     if len(todo) < len(specs):

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from popbench.harness import table1
-from popbench.harness.cache import CellCache
+from popbench.harness import problems, table1
+from popbench.harness.cache import CellCache, provenance
 from popbench.harness.manifest import write_manifest
 from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.runner import Spec, run_cells
@@ -39,6 +39,7 @@ class ScalabilityConfig:
 def cell_specs(config: ScalabilityConfig) -> list[Spec]:
     return [
         {
+            **provenance(config.dataset, method),
             "experiment": "table1",
             "dataset": config.dataset,
             "robots": robots,
@@ -53,15 +54,24 @@ def cell_specs(config: ScalabilityConfig) -> list[Spec]:
     ]
 
 
-def run_scalability(config: ScalabilityConfig, *, progress: bool = True) -> pd.DataFrame:
-    """Compute (or reuse) every cell; write ``scalability.csv``, ``scalability.png``/``.pdf``."""
+def run_scalability(
+    config: ScalabilityConfig, *, progress: bool = True, fresh: bool = False
+) -> pd.DataFrame:
+    """Compute (or reuse; all recomputed if ``fresh``) every cell; write ``scalability.csv``,
+    ``scalability.png``/``.pdf``. The dataset and team sizes are checked first."""
     started = time.perf_counter()
+    problems.check_inputs((config.dataset,), config.robots)
+    specs = cell_specs(config)
     cache = CellCache(config.out / "cells")
     optimum = run_cells(
-        [table1.optimum_spec(config.dataset)], table1.compute_optimum, cache, progress=progress
+        [table1.optimum_spec(config.dataset)],
+        table1.compute_optimum,
+        cache,
+        progress=progress,
+        fresh=fresh,
     )[0]["F_star"]
     frame = pd.DataFrame(
-        run_cells(cell_specs(config), table1.compute_cell, cache, progress=progress)
+        run_cells(specs, table1.compute_cell, cache, progress=progress, fresh=fresh)
     )
     frame["F_star"] = optimum
     frame["gap"] = frame["F"] / optimum - 1.0

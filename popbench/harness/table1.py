@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 
 from popbench.harness import problems, reports
-from popbench.harness.cache import CellCache
+from popbench.harness.cache import CellCache, provenance
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table1_cell
 from popbench.harness.runner import Spec, run_cells
@@ -25,7 +25,12 @@ from popbench.methods import Budget, get_method
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
 ROBOTS = (3, 7, 35)
 METHODS = ("cc-pgo", "ml-pgo", "mm-pgo", "prop-v1", "prop-v2")
-QUICK = {"datasets": ("mit",), "robots": (3,), "iterations": 100}
+QUICK = {
+    "datasets": ("mit",),
+    "robots": (3,),
+    "iterations": 100,
+    "out": Path("results/table1-quick"),
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,14 +48,17 @@ class Table1Config:
 
     @classmethod
     def quick(cls, **overrides: Any) -> Table1Config:
-        """A small subset that finishes in about a minute (CI, first contact)."""
+        """A small subset that finishes in about a minute (CI, first contact); written to
+        ``results/table1-quick`` unless ``out`` is given, so the committed Table I is kept."""
         return cls(**{**QUICK, **overrides})
 
 
 def cell_specs(config: Table1Config) -> list[Spec]:
-    """One specification per table cell, in table order."""
+    """One specification per table cell, in table order, with what it is computed from
+    (:func:`popbench.harness.cache.provenance`: dataset file, code and actor checkpoint)."""
     return [
         {
+            **provenance(dataset, method),
             "experiment": "table1",
             "dataset": dataset,
             "robots": robots,
@@ -68,7 +76,7 @@ def cell_specs(config: Table1Config) -> list[Spec]:
 
 
 def optimum_spec(dataset: str) -> Spec:
-    return {"experiment": "optimum", "dataset": dataset}
+    return {"experiment": "optimum", "dataset": dataset, **provenance(dataset)}
 
 
 def compute_optimum(spec: Spec) -> dict[str, Any]:
@@ -108,18 +116,29 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
     }
 
 
-def run_table1(config: Table1Config, *, progress: bool = True) -> pd.DataFrame:
-    """Compute (or reuse) every cell, then write ``table1.csv``, ``table1.md``, ``table1.tex``,
-    ``table1.png``/``.pdf`` and ``manifest.json`` into ``config.out``."""
+def run_table1(config: Table1Config, *, progress: bool = True, fresh: bool = False) -> pd.DataFrame:
+    """Compute (or reuse; all recomputed if ``fresh``) every cell, then write ``table1.csv``,
+    ``table1.md``, ``table1.tex``, ``table1.png``/``.pdf`` and ``manifest.json`` into
+    ``config.out``.
+
+    Every dataset is loaded and every team size checked against its poses before anything is
+    computed (:func:`popbench.harness.problems.check_inputs`).
+    """
     started = time.perf_counter()
+    problems.check_inputs(config.datasets, config.robots)
+    specs = cell_specs(config)
     cache = CellCache(config.out / "cells")
     optima = {
         row["dataset"]: row["F_star"]
         for row in run_cells(
-            [optimum_spec(d) for d in config.datasets], compute_optimum, cache, progress=progress
+            [optimum_spec(d) for d in config.datasets],
+            compute_optimum,
+            cache,
+            progress=progress,
+            fresh=fresh,
         )
     }
-    rows = run_cells(cell_specs(config), compute_cell, cache, progress=progress)
+    rows = run_cells(specs, compute_cell, cache, progress=progress, fresh=fresh)
     frame = pd.DataFrame(rows)
     frame["F_star"] = frame["dataset"].map(optima)
     frame["gap"] = frame["F"] / frame["F_star"] - 1.0
