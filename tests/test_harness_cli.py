@@ -1,4 +1,5 @@
-"""End to end: ``popbench run table1`` writes its tables and resumes after being killed."""
+"""End to end: ``popbench run table1`` writes its tables and resumes after being killed; the
+cache follows the graph file; bad inputs fail before any work; ``--quick`` and ``--help``."""
 
 import json
 import os
@@ -6,11 +7,13 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
-pytestmark = [pytest.mark.dataset, pytest.mark.slow]
+from popbench.cli import main
 
 
 def _popbench(*args: str, **kwargs) -> subprocess.Popen:
@@ -30,6 +33,8 @@ def mit():
     return require_dataset("mit")
 
 
+@pytest.mark.dataset
+@pytest.mark.slow
 def test_table1_quick_writes_csv_markdown_latex_and_figure(tmp_path, mit):
     process = _popbench("run", "table1", "--quick", "--out", str(tmp_path))
     _, stderr = process.communicate(timeout=600)
@@ -53,6 +58,8 @@ def test_table1_quick_writes_csv_markdown_latex_and_figure(tmp_path, mit):
     assert manifest["wall_s"] > 0 and manifest["hardware"]["cores"] >= 1
 
 
+@pytest.mark.dataset
+@pytest.mark.slow
 def test_killed_run_recomputes_no_finished_cell(tmp_path, mit):
     args = (
         "run",
@@ -86,3 +93,159 @@ def test_killed_run_recomputes_no_finished_cell(tmp_path, mit):
     for path, mtime in finished.items():
         assert path.stat().st_mtime_ns == mtime, f"{path.name} was recomputed"
     assert len(pd.read_csv(tmp_path / "table1.csv")) == 3
+
+
+# ----- in-process CLI on a tiny graph (no dataset needed) ----------------------------------------
+
+
+def _ring(path, n=8, dx="0.77"):
+    """A tiny g2o ring: n poses, n odometry edges (the last closes the loop); ``dx`` is the
+    forward measurement of the first edge (the others measure 0.77)."""
+    lines = [f"VERTEX_SE2 {i} {np.cos(i):.3f} {np.sin(i):.3f} 0" for i in range(n)]
+    lines += [
+        f"EDGE_SE2 {i} {(i + 1) % n} {dx if i == 0 else 0.77} 0.01 0.8 100 0 0 100 0 400"
+        for i in range(n)
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _run(capsys, *args):
+    code = main([str(arg) for arg in args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_an_edited_graph_file_is_recomputed_and_fresh_recomputes(tmp_path, capsys):
+    graph = _ring(tmp_path / "u.g2o")
+    out = tmp_path / "D"
+    args = ("run", "table1", "--datasets", graph, "--robots", "1", "--methods", "mm-pgo")
+    args += ("--iterations", "5", "--out", out)
+
+    def f():
+        return pd.read_csv(out / "table1.csv")["F"].item()
+
+    code, _, err = _run(capsys, *args)
+    assert code == 0, err
+    first = f()
+    code, _, err = _run(capsys, *args)
+    assert code == 0 and "1 of 1 cells already finished" in err
+    _ring(graph, dx="0.951")  # one measurement edited (and the size changed)
+    code, _, err = _run(capsys, *args)
+    assert code == 0, err
+    assert "already finished" not in err  # neither the optimum nor the cell is reused
+    assert f() != pytest.approx(first)
+    code, _, err = _run(capsys, *args, "--fresh")
+    assert code == 0 and "already finished" not in err
+
+
+def _one_error_line(err: str, start: str) -> None:
+    assert err.count("\n") == 1 and err.startswith(f"popbench: error: {start}"), err
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (("--datasets", "{graph},nosuch"), "unknown dataset 'nosuch'"),
+        (("--datasets", "{graph},{tmp}/missing.g2o"), "no such file"),
+        (("--datasets", "{graph}", "--robots", "1,5000"), "invalid --robots 5000: allowed "),
+        (("--datasets", "{graph}", "--robots", "9", "--quick"), "invalid --robots 9: "),
+    ],
+)
+def test_table1_rejects_bad_inputs_before_any_work(tmp_path, capsys, options, message):
+    graph = _ring(tmp_path / "u.g2o")
+    options = [o.format(graph=graph, tmp=tmp_path) for o in options]
+    out = tmp_path / "D"
+    code, stdout, err = _run(
+        capsys, "run", "table1", "--robots", "1", *options, "--methods", "mm-pgo", "--out", out
+    )
+    assert code == 2
+    _one_error_line(err, message)
+    assert stdout == ""
+    assert not out.exists()  # no optimum, no cell, no progress
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("run", "outliers", "--datasets", "{graph},nosuch", "--robots", "1"),
+        ("run", "outliers", "--datasets", "{graph}", "--robots", "9"),
+        ("run", "scalability", "--dataset", "nosuch"),
+        ("run", "scalability", "--dataset", "{graph}", "--robots", "1,9"),
+    ],
+)
+def test_outliers_and_scalability_reject_bad_inputs_before_any_work(tmp_path, capsys, args):
+    graph = _ring(tmp_path / "u.g2o")
+    out = tmp_path / "D"
+    args = [a.format(graph=graph) for a in args]
+    code, _, err = _run(capsys, *args, "--methods", "mm-pgo", "--out", out)
+    assert code == 2
+    _one_error_line(err, "unknown dataset" if "nosuch" in " ".join(args) else "invalid --robots 9")
+    assert not out.exists()
+
+
+@pytest.fixture
+def captured_table1(monkeypatch):
+    """The Table1Config that `popbench run table1` would run (nothing is computed)."""
+    from popbench.harness import table1
+
+    configs = []
+    monkeypatch.setattr(table1, "run_table1", lambda config, **_: configs.append(config) or [])
+    return configs
+
+
+def test_quick_writes_its_own_folder_and_keeps_the_options_given(capsys, captured_table1):
+    from popbench.harness.table1 import QUICK, Table1Config
+
+    assert _run(capsys, "run", "table1", "--quick")[0] == 0
+    assert _run(capsys, "run", "table1", "--quick", "--robots", "2,4", "--iterations", "7")[0] == 0
+    assert _run(capsys, "run", "table1", "--quick", "--out", "elsewhere")[0] == 0
+    assert _run(capsys, "run", "table1")[0] == 0
+    plain, given, moved, full = captured_table1
+    assert plain.out == Path("results/table1-quick") != Table1Config().out
+    assert (plain.datasets, plain.robots, plain.iterations) == (
+        QUICK["datasets"],
+        QUICK["robots"],
+        QUICK["iterations"],
+    )
+    assert (given.robots, given.iterations, given.out) == ((2, 4), 7, plain.out)
+    assert moved.out == Path("elsewhere")
+    assert full == Table1Config()  # the full table: results/table1, all defaults
+
+
+@pytest.mark.parametrize(
+    ("command", "expected"),
+    [
+        (("run", "table1"), ("popbench run table1 --quick", "--fresh", "OUT/cells")),
+        (("run", "outliers"), ("popbench run outliers --rate", "--fresh", "OUT/cells")),
+        (("run", "scalability"), ("popbench run scalability", "--fresh", "OUT/cells")),
+        (
+            ("plot", "trajectories"),
+            ("popbench plot trajectories intel", "results/figures/trajectories_DATASET"),
+        ),
+        (("plot", "curves"), ("popbench plot curves ",)),
+    ],
+)
+def test_help_has_examples(capsys, monkeypatch, command, expected):
+    monkeypatch.setenv("COLUMNS", "250")
+    code, out, _ = _run(capsys, *command, "--help")
+    assert code == 0
+    text = " ".join(out.replace("│", " ").split())
+    assert "Examples:" in text
+    for piece in expected:
+        assert piece in text, piece
+
+
+def test_trajectories_default_stem_is_the_one_the_help_names(tmp_path, capsys, monkeypatch):
+    from popbench.harness import figures
+
+    stems = []
+
+    def plot(dataset, robots, methods, stem, *rest):
+        stems.append(stem)
+        return []
+
+    monkeypatch.setattr(figures, "plot_trajectories", plot)
+    code, _, err = _run(capsys, "plot", "trajectories", tmp_path / "u.g2o", "--methods", "lm")
+    assert code == 0, err
+    assert stems == [Path("results/figures/trajectories_u")]
