@@ -230,12 +230,17 @@ def test_robust_kernel_flags_the_hand_made_outlier(kernel: str, rng):
     )
 
 
-def test_precision_recall_are_rates_with_outliers_and_huber(rng):
+def test_huber_flags_exactly_the_hand_made_outlier(rng):
+    """Huber down-weights the planted outlier to w = 0.051 (measured) and no other edge below 1."""
     graph, outlier = _grid_with_outlier(rng)
     problem = DistributedProblem.from_graph(graph, 3, partition="contiguous", outlier_mask=outlier)
     result = mm_pgo.solve(problem, Budget(iterations=40), kernel="huber")
-    assert 0.0 <= result.extras["precision"] <= 1.0
-    assert 0.0 <= result.extras["recall"] <= 1.0
+    flagged = ~result.inlier_mask
+    assert np.array_equal(flagged, outlier)
+    assert result.extras["precision"] == 1.0 and result.extras["recall"] == 1.0
+    assert (result.extras["precision"], result.extras["recall"]) == precision_recall(
+        flagged, outlier
+    )
     assert result.inlier_mask[problem.graph.kinds == EdgeKind.ODOMETRY].all()
 
 
@@ -246,7 +251,8 @@ def test_precision_recall_are_rates_with_outliers_and_huber(rng):
 def test_reaches_the_published_mit_optimum_with_three_robots():
     problem = DistributedProblem.from_graph(require_dataset("mit"), 3)
     result = mm_pgo.solve(problem, Budget(iterations=400))
-    assert result.F_chordal / MIT_OPTIMUM - 1.0 < 1e-3
+    gap = result.F_chordal / MIT_OPTIMUM - 1.0  # measured +8.4e-6
+    assert -1e-4 < gap < 1e-3  # below the published optimum by more than its rounding: a bug
     assert result.history[0] / MIT_OPTIMUM - 1.0 > 0.3  # chordal start is far off
 
 
