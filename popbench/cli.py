@@ -186,30 +186,85 @@ def build_problem(source: str, robots: int, partition: str, seed: int):
     return distributed_problem(source, robots, "odometry", partition, seed)
 
 
-def run_method(problem, method: str, budget, options: dict[str, Any]):
-    """Call the registered ``method`` on ``problem``, rejecting options its ``solve`` lacks."""
-    import inspect
+SET_BY_CLI = {"init": "--init"}  # method options the command sets from its own flags
 
+
+def check_method_options(method: str, options: dict[str, Any]) -> None:
+    """Reject ``-o`` keys the method's solve does not name (every solve ends in ``**_``, so a
+    misspelt key would otherwise be ignored silently) and those the command sets itself."""
+    from popbench.methods import method_options
+
+    accepted = [name for name in method_options(method) if name not in SET_BY_CLI]
+    for key in options:
+        if key in SET_BY_CLI:
+            raise PopbenchError(
+                f"-o {key}=… is set by the command: use {SET_BY_CLI[key]} instead "
+                "(the record's init and F_init follow it)"
+            )
+        if key not in accepted:
+            raise PopbenchError(
+                f"unknown option -o {key}=… for method {method}; "
+                f"accepted: {', '.join(accepted) or 'none'}"
+            )
+
+
+def run_method(problem, method: str, budget, options: dict[str, Any]):
+    """Call the registered ``method`` on ``problem`` with ``budget`` and keyword ``options``."""
     from popbench.methods import get_method
 
-    solve = get_method(method)
-    try:
-        inspect.signature(solve).bind(problem, budget, **options)
-    except TypeError:
-        accepted = [
-            name
-            for name, parameter in inspect.signature(solve).parameters.items()
-            if parameter.kind is inspect.Parameter.KEYWORD_ONLY
-            or (
-                parameter.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD
-                and name not in {"problem", "budget"}
-            )
-        ]
-        unknown = sorted(set(options) - set(accepted))
-        raise ValueRangeError(
-            f"option for method {method}", ", ".join(unknown), ", ".join(accepted) or "none"
-        ) from None
-    return solve(problem, budget, **options)
+    return get_method(method)(problem, budget, **options)
+
+
+class SolveProgress:
+    """A transient status line on stderr while ``popbench solve`` works: the stage, a bar of the
+    rounds done (for methods that report them through ``Budget.round_done``) and the elapsed
+    time. It is erased when the command ends."""
+
+    def __init__(self, text: str = "") -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            Progress,
+            SpinnerColumn,
+            TextColumn,
+            TimeElapsedColumn,
+        )
+
+        self._progress = Progress(
+            SpinnerColumn(),
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.fields[rounds]}"),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+            transient=True,
+            redirect_stdout=False,
+            redirect_stderr=False,
+        )
+        self._task = self._progress.add_task(text, total=None, rounds="")
+        self._total: int | None = None
+
+    def __enter__(self) -> SolveProgress:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._progress.stop()
+
+    def stage(self, text: str, rounds: int | None = None) -> None:
+        """Show ``text``; ``rounds`` (the budget) sizes the bar once rounds are reported."""
+        self._total = rounds
+        self._progress.update(self._task, description=text, total=None, completed=0, rounds="")
+
+    def on_round(self, done: int) -> None:
+        """``Budget.on_round``: ``done`` rounds have run."""
+        total = self._total
+        self._progress.update(
+            self._task,
+            total=total,
+            completed=done,
+            rounds=f"{done}/{total} rounds" if total else f"{done} rounds",
+        )
 
 
 def solve_record(
@@ -222,9 +277,11 @@ def solve_record(
     partition: str = "metis",
     seed: int = 0,
     options: dict[str, Any] | None = None,
+    progress: SolveProgress | None = None,
 ) -> dict[str, Any]:
     """Solve one problem and summarise it as a JSON-ready dict (what ``popbench solve --json``
-    prints).
+    prints). ``options`` are checked by :func:`check_method_options`; ``progress`` (optional)
+    is shown each stage and told of each round.
 
     The problem holds the odometry composition; the method is called with ``init=init``
     (``"odometry"`` or ``"chordal"``, which every registered method accepts) and builds its own
@@ -241,12 +298,28 @@ def solve_record(
         raise ValueRangeError("--iterations", iterations, "an integer ≥ 0")
     if seconds is not None and not seconds > 0:
         raise ValueRangeError("--seconds", seconds, "a number > 0")
-    budget = Budget() if iterations is None else Budget(iterations=iterations)
-    if seconds is not None:
-        budget = Budget(iterations=budget.iterations, seconds=seconds)
+    check_method_options(method, options or {})
+    budget = Budget(
+        iterations=Budget.iterations if iterations is None else iterations,
+        seconds=seconds,
+        on_round=progress.on_round if progress is not None else None,
+    )
+    if progress is not None:
+        split = f" and splitting it among {robots} robots" if robots > 1 else ""
+        progress.stage(f"loading {source}{split}…")
     problem = build_problem(source, robots, partition, seed)
     options = {"init": init, **(options or {})}
+    if progress is not None:
+        team = f", {problem.num_robots} robots" if problem.num_robots > 1 else ""
+        episode = method.startswith("prop-")  # one episode; --iterations does not apply
+        rounds = "one episode" if episode else f"at most {budget.iterations} rounds"
+        progress.stage(
+            f"solving {problem.graph.name} with {method}{team}, {rounds}…",
+            None if episode else budget.iterations,
+        )
     result = run_method(problem, method, budget, options)
+    if progress is not None:
+        progress.stage(f"F at the {init} estimate…")
     graph = problem.graph
     record: dict[str, Any] = {
         "dataset": graph.name,
@@ -316,12 +389,25 @@ def solve(
     ] = "odometry",
     iterations: Annotated[
         int | None,
-        typer.Option(help="Rounds the method may run (≥ 0; default: the method's budget, 1000)."),
+        typer.Option(
+            help="Rounds the method may run (≥ 0; default 1000). A round is one LM step "
+            "(accepted or rejected) for lm; one RBCD block round (one colour class of robots "
+            "updates) for cc-pgo and ml-pgo; one MM iteration (every robot one step) for "
+            "mm-pgo. prop-v1 and prop-v2 ignore it: they run one episode of one actor step "
+            "per local edge, then consensus (prop-v2 then 75 LM steps)."
+        ),
     ] = None,
     seconds: Annotated[
         float | None, typer.Option(help="Wall-clock cap in seconds (optional).")
     ] = None,
-    robots: Annotated[int, typer.Option(help="Number of robots the graph is split among.")] = 1,
+    robots: Annotated[
+        int,
+        typer.Option(
+            help="Number of robots the graph is split among: 1 to the number of poses. Only "
+            "the distributed methods use it; the default method, lm, is centralised and "
+            "solves the whole graph whatever --robots says."
+        ),
+    ] = 1,
     partition: Annotated[
         str, typer.Option(help="How poses are split among robots: metis or contiguous.")
     ] = "metis",
@@ -333,16 +419,21 @@ def solve(
             "-o",
             metavar="KEY=VALUE",
             help="Extra keyword option for the method (repeatable); VALUE is read as JSON "
-            "when it parses, else as a string.",
+            "when it parses, else as a string. KEY must be one of the method's options (an "
+            "unknown KEY lists them); the start is --init, not -o init.",
         ),
     ] = None,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print exactly one JSON object on stdout.")
     ] = False,
 ) -> None:
-    """Solve one pose graph with one method and report F, F_chordal, chi2 and timings."""
-    record = solve_record(
-        source,
+    """Solve one pose graph with one method and report F, F_chordal, chi2 and timings.
+
+    Progress (stage, rounds, elapsed time) is shown on stderr if a terminal, then erased.
+    """
+    import contextlib
+
+    arguments = dict(
         method=method,
         init=init,
         iterations=iterations,
@@ -352,6 +443,9 @@ def solve(
         seed=seed,
         options=parse_method_options(option or []),
     )
+    live = SolveProgress(f"loading {source}…") if sys.stderr.isatty() else None
+    with live if live is not None else contextlib.nullcontext():
+        record = solve_record(source, **arguments, progress=live)
     if json_output:
         typer.echo(json.dumps(record))
     else:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -21,10 +22,22 @@ from popbench.errors import ValueRangeError
 @dataclasses.dataclass(frozen=True)
 class Budget:
     """How long a method may run: ``iterations`` rounds (each method documents what one round
-    is) and, optionally, a wall-clock cap in seconds."""
+    is) and, optionally, a wall-clock cap in seconds.
+
+    ``on_round``, if given, is told the number of rounds done after each round (the CLI's
+    progress bar); methods report through :meth:`round_done`, which costs nothing without it.
+    """
 
     iterations: int = 1000
     seconds: float | None = None
+    on_round: Callable[[int], None] | None = dataclasses.field(
+        default=None, compare=False, repr=False
+    )
+
+    def round_done(self, rounds: int) -> None:
+        """Tell ``on_round`` (if any) that ``rounds`` rounds have run so far."""
+        if self.on_round is not None:
+            self.on_round(rounds)
 
 
 @dataclasses.dataclass
@@ -67,6 +80,25 @@ METHODS: dict[str, str] = {
     "prop-v1": "agents.methods:solve_prop_v1",
     "prop-v2": "agents.methods:solve_prop_v2",
 }
+
+
+# Methods whose ``**options`` are passed on to another registered method's solve.
+FORWARDS: dict[str, str] = {"prop-v2": "prop-v1"}
+
+
+def method_options(name: str) -> tuple[str, ...]:
+    """The keyword options the method registered under ``name`` accepts: its solve function's
+    named parameters after ``problem`` and ``budget`` (and those of the method it forwards
+    ``**options`` to, see :data:`FORWARDS`). A trailing ``**_`` swallows anything else, so
+    callers that take options from users should check them against this list."""
+    names = [
+        parameter.name
+        for parameter in list(inspect.signature(get_method(name)).parameters.values())[2:]
+        if parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
+    ]
+    if name in FORWARDS:
+        names += [option for option in method_options(FORWARDS[name]) if option not in names]
+    return tuple(names)
 
 
 def get_method(name: str) -> Method:

@@ -196,3 +196,139 @@ def test_solve_json_record_with_a_distributed_method(capsys: pytest.CaptureFixtu
 
     graph = datasets.load("mit")
     assert record["F_init"] == pytest.approx(objective(graph, chordal_initialisation(graph)))
+
+
+@pytest.mark.parametrize(
+    ("args", "phrase"),
+    [
+        (["-o", "bogus=1"], "unknown option -o bogus=… for method lm; accepted: chordal_stage, "),
+        (
+            ["--method", "mm-pgo", "-o", "kernal=gm"],
+            "unknown option -o kernal=… for method mm-pgo; accepted: kernel, kernel_scale,",
+        ),
+        (["--method", "ml-pgo", "-o", "rank=3", "-o", "rnak=3"], "-o rnak=… for method ml-pgo"),
+        (["--method", "cc-pgo", "-o", "init=chordal"], "-o init=… is set by the command: use"),
+    ],
+)
+def test_unknown_method_options_are_rejected(capsys: pytest.CaptureFixture, args, phrase) -> None:
+    # Every solve ends in **_, so without the check a misspelt option ran silently (exit 0).
+    # The check runs before the problem is built: no dataset is read.
+    assert cli.main(["solve", "no-such-dataset", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("popbench: error: ") and phrase in err, err
+    assert "init" not in err.partition("accepted:")[2]  # init is --init's, not an -o option
+
+
+def test_method_options_follow_forwarding() -> None:
+    from popbench.methods import method_options
+
+    # prop-v2 passes its **options to prop-v1, so prop-v1's options are prop-v2's too.
+    assert {"lm_iterations", "consensus_iterations", "checkpoint"} <= set(method_options("prop-v2"))
+    assert "consensus_iterations" in method_options("prop-v1")
+    assert "lm_iterations" not in method_options("prop-v1")
+    cli.check_method_options("prop-v2", {"consensus_iterations": 3, "lm_iterations": 5})
+
+
+def test_solve_help_explains_rounds_and_robots() -> None:
+    import typer.main
+
+    params = {p.name: p.help for p in typer.main.get_command(cli.app).commands["solve"].params}
+    assert "prop-v1 and prop-v2 ignore it" in params["iterations"]
+    assert "one LM step" in params["iterations"] and "one MM iteration" in params["iterations"]
+    assert "1 to the number of poses" in params["robots"]
+    assert "lm, is centralised" in params["robots"]
+
+
+def _counting_solve(problem, budget, init="problem", **_):
+    """A registered method for the progress test: reports each round, then runs LM."""
+    from popbench.solvers.lm import solve as lm_solve
+
+    for done in range(1, budget.iterations + 1):
+        budget.round_done(done)
+    return lm_solve(problem, budget, init=init)
+
+
+class _Recorder:
+    def __init__(self) -> None:
+        self.stages: list[tuple[str, int | None]] = []
+        self.rounds: list[int] = []
+
+    def stage(self, text: str, rounds: int | None = None) -> None:
+        self.stages.append((text, rounds))
+
+    def on_round(self, done: int) -> None:
+        self.rounds.append(done)
+
+
+def test_solve_record_reports_stages_and_rounds(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from popbench import methods
+
+    monkeypatch.setitem(methods.METHODS, "counting", "test_cli:_counting_solve")
+    path = tmp_path / "tri.g2o"
+    path.write_text(
+        "EDGE_SE2 0 1 1 0 1.5 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 1.5 1 0 0 1 0 1\n"
+        "EDGE_SE2 2 0 1 0 1.6 1 0 0 1 0 1\n"
+    )
+    recorder = _Recorder()
+    record = cli.solve_record(str(path), method="counting", iterations=4, progress=recorder)
+    assert recorder.rounds == [1, 2, 3, 4]
+    texts = [text for text, _ in recorder.stages]
+    assert texts[0].startswith(f"loading {path}")
+    assert ("solving tri with counting, at most 4 rounds…", 4) in recorder.stages
+    assert record["iterations"] <= 4
+    # Without a progress object the Budget carries no callback and round_done is a no-op.
+    assert cli.solve_record(str(path), method="counting", iterations=2)["method"] == "counting"
+    assert methods.Budget(iterations=3) == methods.Budget(iterations=3, on_round=print)
+
+
+def _run_with_tty_stderr(*args: str) -> tuple[subprocess.CompletedProcess, str]:
+    """``python -m popbench ARGS`` with stderr on a pseudo-terminal; returns the run (stdout
+    captured) and what the terminal received."""
+    import pty
+    import threading
+
+    master, slave = pty.openpty()
+    received: list[bytes] = []
+
+    def drain() -> None:
+        while True:
+            try:
+                data = os.read(master, 65536)
+            except OSError:
+                return
+            if not data:
+                return
+            received.append(data)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        run = subprocess.run(
+            [sys.executable, "-m", "popbench", *args],
+            stdout=subprocess.PIPE,
+            stderr=slave,
+            text=True,
+            env={**os.environ, "COLUMNS": "200"},
+            timeout=300,
+        )
+    finally:
+        os.close(slave)
+    reader.join(timeout=5)
+    os.close(master)
+    return run, b"".join(received).decode(errors="replace")
+
+
+@pytest.mark.dataset
+def test_solve_shows_progress_on_a_terminal_only() -> None:
+    require_dataset("mit")
+    args = ("solve", "mit", "--method", "mm-pgo", "--robots", "3", "--iterations", "300")
+    run, terminal = _run_with_tty_stderr(*args, "--json")
+    assert run.returncode == 0, terminal
+    assert json.loads(run.stdout)["iterations"] == 300  # stdout: exactly the JSON object
+    assert "solving mit with mm-pgo, 3 robots, at most 300 rounds…" in terminal
+    assert "popbench: error" not in terminal
+    # stderr not a terminal: nothing on it.
+    piped = popbench(*args, "--json")
+    assert piped.returncode == 0 and piped.stderr == ""
