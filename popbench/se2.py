@@ -54,11 +54,12 @@ def between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _v_coefficients(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(sin θ / θ, (1 − cos θ) / θ)`` with their Taylor series near zero."""
+    """``(sin θ / θ, (1 − cos θ) / θ)`` with their Taylor series near zero; ``1 − cos θ`` is
+    computed as ``2 sin²(θ/2)``, which does not cancel for small θ."""
     small = np.abs(theta) < 1e-6
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, theta / 2.0 - theta**3 / 24.0, (1.0 - np.cos(safe)) / safe)
+    b = np.where(small, theta / 2.0 - theta**3 / 24.0, 2.0 * np.sin(safe / 2.0) ** 2 / safe)
     return a, b
 
 

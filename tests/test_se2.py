@@ -27,9 +27,9 @@ SPECIAL_THETAS = np.array(
 TIGHT = 1e-12  # absolute, on coordinates of magnitude ≤ ~30
 GTSAM_SMALL_ANGLE = 1e-4  # below this (θ ≠ 0) GTSAM's Expmap/Logmap lose precision
 GTSAM_SMALL_ANGLE_ATOL = 5e-6  # measured ≤ 7.5e-7 with |t| ≤ 14 (see module docstring)
-# Ours against the half-angle form: measured 4e-10 at θ = 1e-6, |t| = 11.4 (the closed form
-# (1 − cos θ)/θ just above se2's Taylor switch at 1e-6 cancels); round-off elsewhere.
-HALF_ANGLE_ATOL = 2e-9
+# Ours against the half-angle form: round-off only (se2 computes 1 − cos θ as 2 sin²(θ/2); the
+# direct form cancelled to 4e-10 error at θ = 1e-6, |t| = 11.4).
+HALF_ANGLE_ATOL = 1e-12
 
 
 def random_poses(rng: np.random.Generator, n: int = 200) -> np.ndarray:
