@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
@@ -141,9 +142,11 @@ def run_episode(
     problem: DistributedProblem,
     seconds: float | None = None,
     max_steps: int | None = None,
+    on_step: Callable[[int], None] | None = None,
 ) -> Episode:
     """Run the actor for one episode on every robot's local graph (module docstring, step 1);
-    `seconds` / `max_steps` cut it short (benchmarks)."""
+    `seconds` / `max_steps` cut it short (benchmarks); `on_step`, if given, is told the number
+    of steps done after each step (progress display)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
@@ -195,6 +198,8 @@ def run_episode(
         )
         step_s.append(time.perf_counter() - tick)
         history.append(copies_objective())
+        if on_step is not None:
+            on_step(len(step_s))
         if seconds is not None and time.perf_counter() - start > seconds:
             break
 
@@ -231,7 +236,7 @@ def solve_prop_v1(
     problem = starting_problem(problem, init)
     actor = cached_actor(str(checkpoint or DEFAULT_CHECKPOINT), device)
     with torch.no_grad():
-        episode = run_episode(actor, problem, budget.seconds)
+        episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done)
     graph = problem.graph
     actor_poses = problem.assemble(episode.local_poses)
     tic = time.perf_counter()

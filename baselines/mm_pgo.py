@@ -841,6 +841,7 @@ def solve(
         previous, (poses, terms, costs) = poses, following
         parallel_s += (time.perf_counter() - tic) * team.slowest_share
         iterations += 1
+        budget.round_done(iterations)
 
     poses = poses.poses
     poses[:, 2] = se2.wrap(poses[:, 2])

@@ -798,6 +798,7 @@ def run_rbcd(
             restarts += 1
         x, q_x, cost = update.x, update.q_x, cost_new
         history.append(2.0 * cost)
+        budget.round_done(iteration)
         shared_s = time.perf_counter() - round_start - robots_s
         parallel_s += slowest_s + shared_s / num_robots
     return RBCDRun(x, np.asarray(history), iteration, parallel_s, messages, restarts)

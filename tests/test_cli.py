@@ -332,3 +332,17 @@ def test_solve_shows_progress_on_a_terminal_only() -> None:
     # stderr not a terminal: nothing on it.
     piped = popbench(*args, "--json")
     assert piped.returncode == 0 and piped.stderr == ""
+
+
+@pytest.mark.parametrize("method", ["cc-pgo", "ml-pgo", "mm-pgo", "prop-v1"])
+def test_every_iterative_method_reports_each_round(small_graph, method: str) -> None:
+    """The progress bar counts real rounds: each method calls Budget.round_done once per round
+    (prop-v1: per actor step), with the running count."""
+    from popbench.distributed import DistributedProblem
+    from popbench.methods import Budget, get_method
+
+    problem = DistributedProblem.from_graph(small_graph, 3)
+    seen: list[int] = []
+    result = get_method(method)(problem, Budget(iterations=12, on_round=seen.append))
+    assert seen == list(range(1, result.iterations + 1))
+    assert result.iterations > 0
