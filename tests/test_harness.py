@@ -261,3 +261,14 @@ def test_fresh_recomputes_cached_cells(tmp_path):
     assert computed == [0, 1, 2, 0, 1, 2]
     assert [row["F"] for row in rows] == [4.0, 5.0, 6.0]
     assert [cache.get(spec)["F"] for spec in specs] == [4.0, 5.0, 6.0]  # overwritten
+
+
+@pytest.mark.parametrize("text", ["VERTEX_SE2 0 0 0 0\n", "a,b\n1,2\n", "frames,label\n1,x\n"])
+def test_plot_curves_rejects_a_file_that_is_not_a_metrics_csv(tmp_path, text: str) -> None:
+    from popbench.errors import ValueRangeError
+    from popbench.harness.figures import plot_learning_curves
+
+    path = tmp_path / "metrics.csv"
+    path.write_text(text)
+    with pytest.raises(ValueRangeError, match="metrics.csv.*'frames' column"):
+        plot_learning_curves([path], tmp_path / "curves")

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from popbench.errors import ValueRangeError
 from popbench.harness import problems
 from popbench.harness.plotting import pyplot, save_figure
 from popbench.methods import Budget, get_method
@@ -44,11 +45,25 @@ def plot_trajectories(
     return save_figure(fig, out)
 
 
+def read_metrics(path: Path, x: str = "frames") -> pd.DataFrame:
+    """A training metrics CSV (``popbench train`` writes ``OUT/metrics.csv``) with an ``x`` column
+    and at least one other numeric column."""
+    expected = f"a training metrics CSV with a '{x}' column and another numeric column"
+    try:
+        frame = pd.read_csv(path)
+    except (ValueError, UnicodeDecodeError) as error:  # pandas' ParserError is a ValueError
+        raise ValueRangeError("CSV file", str(path), expected) from error
+    numeric = set(frame.select_dtypes("number").columns)
+    if x not in frame or not numeric - {x}:
+        raise ValueRangeError("CSV file", str(path), expected)
+    return frame
+
+
 def plot_learning_curves(csv_paths: list[Path], out: Path, x: str = "frames") -> list[Path]:
     """Every numeric column of the training CSVs against ``x``, one panel per column, one line
-    per file; PNG + PDF."""
+    per file; PNG + PDF. A file that is not such a CSV is a one-line ``ValueRangeError``."""
+    frames = {path.stem: read_metrics(path, x) for path in csv_paths}
     plt = pyplot()
-    frames = {path.stem: pd.read_csv(path) for path in csv_paths}
     columns = sorted(
         {c for f in frames.values() for c in f.select_dtypes("number").columns if c != x}
     )
