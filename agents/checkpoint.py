@@ -28,6 +28,10 @@ class CheckpointError(PopbenchError):
     """A checkpoint file is missing, unreadable or of another format."""
 
 
+class ResumeConfigError(CheckpointError):
+    """A run directory's checkpoint was trained with other options than those of the resume."""
+
+
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
     """Write `state` (see module docstring) atomically: to a temporary file, then renamed."""
     path = Path(path)

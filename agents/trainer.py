@@ -5,8 +5,20 @@
     metrics.csv     one row per collector batch: frames, updates, episodes, episode_return (mean
                     over episodes finished in the batch of the per-agent-mean return), losses,
                     temperatures, edge entropy, mean log π(δ), mean Q of the taken actions,
-                    gate mean (last update of the batch), and at eval points eval_f_reduction
+                    gate mean (last update of the batch), at eval points eval_f_reduction, and
+                    wall_s (seconds of training, summed over resumed calls)
     learning_curve.png  episode return and held-out F reduction against frames
+and returns a `TrainResult` (frames trained by this call, total frames, updates).
+
+Resuming: the checkpoint's config must match the requested one except for the experiment's
+device, frames, out_dir and progress (`ResumeConfigError` otherwise, naming the options).
+metrics.csv is cut back to the checkpoint's frames first: a run killed between two periodic
+checkpoints has logged batches that the resumed run collects again. Checkpoints and evaluations
+fall on multiples of their intervals, whatever frame count a run resumes at.
+
+Interrupts (Ctrl-C): a SIGINT that arrives during an optimisation step is held until the step
+ends (a second SIGINT stops at once); the run then logs the batch in progress, saves a
+checkpoint and raises KeyboardInterrupt, whose message says where the checkpoint is.
 
 Frames are counted as TorchRL does: one frame = one step of one environment of the batch (all
 n agents at once), so a transition in the buffer is one joint (multi-agent) step.
@@ -18,10 +30,15 @@ the score is 1 − Σ_i F_i(T) / Σ_i F_i(0) over the agents' local graphs (befo
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import math
+import os
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +51,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from torchrl.objectives import SoftUpdate
 
 from agents.actor import GASACPolicy, HybridActor
-from agents.checkpoint import read_checkpoint, save_checkpoint
-from agents.config import TrainConfig
+from agents.checkpoint import CheckpointError, ResumeConfigError, read_checkpoint, save_checkpoint
+from agents.config import PRESETS, TrainConfig
 from agents.critic import CentralCritic
 from agents.loss import GASACLoss
 
@@ -132,9 +149,11 @@ def session_state(session: Session) -> dict[str, Any]:
     }
 
 
-def restore(session: Session, path: Path) -> None:
-    """Load networks, optimisers and progress from a checkpoint into `session`."""
-    state = read_checkpoint(path, session.config.experiment.device)
+def restore(session: Session, checkpoint: Path | dict[str, Any]) -> None:
+    """Load networks, optimisers and progress from a checkpoint (path or read state)."""
+    state = checkpoint
+    if not isinstance(state, dict):
+        state = read_checkpoint(checkpoint, session.config.experiment.device)
     session.loss.load_state_dict(state["loss"])
     for name, optimiser in session.optimisers.items():
         optimiser.load_state_dict(state["optimisers"][name])
@@ -210,27 +229,217 @@ def evaluate_f_reduction(session: Session, eval_env) -> float:
     return float(1.0 - core["loss"].sum() / core["initial_loss"].sum())
 
 
-def train(config: TrainConfig, resume: bool = True) -> Path:
-    """Train GA-SAC as configured; returns the run directory. See the module docstring."""
+@dataclasses.dataclass(frozen=True)
+class TrainResult:
+    """What `train` did: `str()` / `os.fspath()` of it is the run directory."""
+
+    out_dir: Path
+    frames_trained: int  # environment frames collected by this call
+    frames: int  # total frames of the run (the checkpoint's)
+    updates: int  # total optimisation steps of the run
+    resumed_from: int  # frames of the checkpoint this call resumed from (0: a new run)
+
+    def __str__(self) -> str:
+        return str(self.out_dir)
+
+    def __fspath__(self) -> str:
+        return str(self.out_dir)
+
+    def summary(self) -> str:
+        """One line for the user, e.g. `trained 1024 frames (resumed at 2048; 3072 in total)`."""
+        where = f"run directory {self.out_dir}"
+        if self.frames_trained == 0:
+            return f"nothing to train: the run already has {self.frames} frames; {where}"
+        if self.resumed_from:
+            done = f"resumed at {self.resumed_from}; {self.frames} in total"
+            return f"trained {self.frames_trained} frames ({done}); {where}"
+        return f"trained {self.frames_trained} frames; {where}"
+
+
+def train(config: TrainConfig, resume: bool = True) -> TrainResult:
+    """Train GA-SAC as configured (see the module docstring)."""
     experiment = config.experiment
     out_dir = Path(experiment.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     checkpoint = out_dir / "checkpoint.pt"
     metrics_path = out_dir / "metrics.csv"
-    session = build_session(config)
+    state = None
     if resume and checkpoint.is_file():
-        restore(session, checkpoint)
+        state = read_checkpoint(checkpoint, experiment.device)
+        check_resume_config(checkpoint, state, config)
+    session = build_session(config)
+    wall_offset = 0.0
+    if state is not None:
+        restore(session, state)
+        wall_offset = truncate_metrics(metrics_path, session.frames)
     elif metrics_path.exists():
         metrics_path.unlink()
+    resumed_from = session.frames
     remaining = experiment.frames - session.frames
     if remaining > 0:
-        _run(session, remaining, checkpoint, metrics_path)
+        _run(session, remaining, checkpoint, metrics_path, wall_offset)
     save_checkpoint(checkpoint, session_state(session))
     plot_learning_curve(metrics_path, out_dir / "learning_curve.png")
-    return out_dir
+    return TrainResult(
+        out_dir, session.frames - resumed_from, session.frames, session.updates, resumed_from
+    )
 
 
-def _run(session: Session, remaining: int, checkpoint: Path, metrics_path: Path) -> None:
+# ----- resuming -------------------------------------------------------------------------------
+
+# Options that a resumed run may change; everything else must match the checkpoint's config.
+RESUME_FREE_FIELDS = ("device", "frames", "out_dir", "progress")
+_CLI_OPTIONS = {"noise": "--env", "robots": "--robots", "seed": "--seed"}
+
+
+def _comparable(config: TrainConfig, drop_cli: bool) -> dict[str, Any]:
+    """Flat {"part.field": value} of the fields a resumed run must keep (delta_max comes from
+    the environment, not the request); `drop_cli` also leaves out --env/--robots/--seed."""
+    dropped = set(RESUME_FREE_FIELDS) | (set(_CLI_OPTIONS) if drop_cli else set())
+    flat = {}
+    for part in ("model", "algorithm", "experiment"):
+        for name, value in dataclasses.asdict(getattr(config, part)).items():
+            if (part, name) == ("model", "delta_max"):
+                continue
+            if part == "experiment" and name in dropped:
+                continue
+            flat[f"{part}.{name}"] = tuple(value) if isinstance(value, list) else value
+    return flat
+
+
+def _preset_name(config: TrainConfig) -> str | None:
+    fields = _comparable(config, drop_cli=True)
+    for name, preset in PRESETS.items():
+        if _comparable(preset, drop_cli=True) == fields:
+            return name
+    return None
+
+
+def resume_differences(stored: TrainConfig, requested: TrainConfig) -> list[str]:
+    """The options in which `requested` differs from a checkpoint's `stored` config, each as
+    `--option OLD (requested NEW)`; [] when the run can be resumed."""
+    differences = []
+    for name, option in _CLI_OPTIONS.items():
+        old, new = getattr(stored.experiment, name), getattr(requested.experiment, name)
+        if old != new:
+            differences.append(f"{option} {old} (requested {new})")
+    old_fields = _comparable(stored, drop_cli=True)
+    new_fields = _comparable(requested, drop_cli=True)
+    changed = [key for key in new_fields if old_fields.get(key) != new_fields[key]]
+    changed += [key for key in old_fields if key not in new_fields]
+    if changed:
+        old_preset, new_preset = _preset_name(stored), _preset_name(requested)
+        if old_preset and new_preset:
+            differences.append(f"--preset {old_preset} (requested {new_preset})")
+        else:
+            shown = [f"{k} {old_fields.get(k)} (requested {new_fields.get(k)})" for k in changed]
+            more = f" and {len(shown) - 3} more settings" if len(shown) > 3 else ""
+            differences.append(", ".join(shown[:3]) + more)
+    return differences
+
+
+def check_resume_config(path: Path, state: dict[str, Any], requested: TrainConfig) -> None:
+    """Raise a one-line `ResumeConfigError` if the checkpoint's run differs from `requested`."""
+    try:
+        stored = TrainConfig.from_dict(state["config"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise CheckpointError(f"{path}: unreadable run config ({error})") from None
+    differences = resume_differences(stored, requested)
+    if differences:
+        raise ResumeConfigError(
+            f"{path} holds a run trained with other options: {'; '.join(differences)}. "
+            "Pass the run's options to resume it, or start a new run with --no-resume "
+            "(which overwrites it) or another --out"
+        )
+
+
+def truncate_metrics(metrics_path: Path, frames: int) -> float:
+    """Keep the metrics rows up to `frames` (a checkpoint's); their last wall_s (0 if none).
+
+    A run stopped between two checkpoints has logged batches past its checkpoint; the resumed
+    run collects those frames again, so their rows go. The file is rewritten atomically (with
+    the current columns, should an older run have written others)."""
+    if not metrics_path.is_file():
+        return 0.0
+    with metrics_path.open(newline="") as handle:
+        reader = csv.DictReader(handle)
+        rows = list(reader)
+        fieldnames = reader.fieldnames
+
+    def frames_of(row: dict[str, str]) -> float:
+        try:
+            return float(row.get("frames") or "nan")
+        except ValueError:
+            return math.nan
+
+    kept = [row for row in rows if frames_of(row) <= frames]
+    if len(kept) < len(rows) or tuple(fieldnames or ()) != METRIC_FIELDS:
+        temporary = metrics_path.with_suffix(".csv.tmp")
+        with temporary.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, METRIC_FIELDS, extrasaction="ignore", restval="")
+            writer.writeheader()
+            writer.writerows(kept)
+        os.replace(temporary, metrics_path)
+    try:
+        return float(kept[-1]["wall_s"]) if kept else 0.0
+    except (KeyError, TypeError, ValueError):
+        return 0.0
+
+
+# ----- the training loop ----------------------------------------------------------------------
+
+
+def is_interrupt(error: BaseException) -> bool:
+    """A KeyboardInterrupt, or an error raised while one was being handled.
+
+    tensordict 0.14's `TensorDictBase.__exit__` returns a TensorDict when a non-Exception
+    (KeyboardInterrupt) leaves a `with params.to_module(module):` block, as in agents.loss, and
+    Python's truth test of that return value raises `RuntimeError: Converting a tensordict to
+    boolean value is not permitted`, with the KeyboardInterrupt as its context.
+    """
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__context__
+    return False
+
+
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold a SIGINT that arrives inside the block until it ends (then raise KeyboardInterrupt);
+    a second SIGINT raises at once. A no-op off the main thread or under a custom handler."""
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield
+        return
+    caught: list[int] = []
+
+    def hold(signum, frame) -> None:
+        if caught:
+            signal.default_int_handler(signum, frame)
+        caught.append(signum)
+
+    previous = signal.signal(signal.SIGINT, hold)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+def _next_multiple(frames: int, interval: int) -> int:
+    return (frames // interval + 1) * interval
+
+
+def _run(
+    session: Session, remaining: int, checkpoint: Path, metrics_path: Path, wall_offset: float
+) -> None:
+    """Collect `remaining` more frames (rounded up to whole batches), updating and logging."""
     experiment, algorithm = session.config.experiment, session.config.algorithm
     frames_per_batch = max(experiment.num_envs, experiment.frames_per_batch)
     frames_per_batch -= frames_per_batch % experiment.num_envs
@@ -253,45 +462,66 @@ def _run(session: Session, remaining: int, checkpoint: Path, metrics_path: Path)
         session.config, experiment.eval_problems, experiment.seed + EVAL_SEED_OFFSET, reward="F"
     )
     tracker = EpisodeTracker(experiment.num_envs)
-    next_checkpoint = session.frames + experiment.checkpoint_interval
-    next_eval = session.frames + experiment.eval_interval
-    start = time.perf_counter()
+    next_checkpoint = _next_multiple(session.frames, experiment.checkpoint_interval)
+    next_eval = _next_multiple(session.frames, experiment.eval_interval)
+    start = time.perf_counter() - wall_offset
     progress = _progress(experiment.progress, experiment.frames, session.frames)
-    with metrics_path.open("a", newline="") as handle:
-        writer = csv.DictWriter(handle, METRIC_FIELDS)
-        if handle.tell() == 0:
-            writer.writeheader()
-        for data in collector:
-            session.frames += data.numel()
-            returns = tracker.update(data)
-            buffer.extend(data.reshape(-1))
-            logs: dict[str, float] = {}
-            if session.frames >= warmup_end and len(buffer) >= algorithm.batch_size:
-                for _ in range(algorithm.updates_per_batch):
-                    logs = optimise(session, buffer.sample())
-                collector.update_policy_weights_()
-            row = {key: logs.get(key, "") for key in METRIC_FIELDS}
-            row.update(
-                frames=session.frames,
-                updates=session.updates,
-                episodes=tracker.episodes,
-                episode_return=sum(returns) / len(returns) if returns else "",
-                wall_s=round(time.perf_counter() - start, 3),
-            )
-            if session.frames >= next_eval:
-                row["eval_f_reduction"] = evaluate_f_reduction(session, eval_env)
-                next_eval += experiment.eval_interval
-            writer.writerow(row)
-            handle.flush()
-            if session.frames >= next_checkpoint:
+    pending: dict[str, Any] | None = None  # the row of a batch counted but not yet logged
+    try:
+        with metrics_path.open("a", newline="") as handle:
+            writer = csv.DictWriter(handle, METRIC_FIELDS)
+            if handle.tell() == 0:
+                writer.writeheader()
+            try:
+                for data in collector:
+                    session.frames += data.numel()
+                    returns = tracker.update(data)
+                    pending = dict.fromkeys(METRIC_FIELDS, "")
+                    pending.update(
+                        frames=session.frames,
+                        updates=session.updates,
+                        episodes=tracker.episodes,
+                        episode_return=sum(returns) / len(returns) if returns else "",
+                    )
+                    buffer.extend(data.reshape(-1))
+                    if session.frames >= warmup_end and len(buffer) >= algorithm.batch_size:
+                        for _ in range(algorithm.updates_per_batch):
+                            with interrupts_deferred():  # never stop half-way through a step
+                                logs = optimise(session, buffer.sample())
+                                pending.update(
+                                    {k: v for k, v in logs.items() if k in METRIC_FIELDS},
+                                    updates=session.updates,
+                                )
+                        collector.update_policy_weights_()
+                    if session.frames >= next_eval:
+                        pending["eval_f_reduction"] = evaluate_f_reduction(session, eval_env)
+                        next_eval = _next_multiple(session.frames, experiment.eval_interval)
+                    row, pending = pending, None
+                    row["wall_s"] = round(time.perf_counter() - start, 3)
+                    writer.writerow(row)
+                    handle.flush()
+                    if session.frames >= next_checkpoint:
+                        save_checkpoint(checkpoint, session_state(session))
+                        next_checkpoint = _next_multiple(
+                            session.frames, experiment.checkpoint_interval
+                        )
+                    if progress is not None:
+                        progress.update(data.numel())
+                        progress.set_postfix(ret=row["episode_return"], upd=session.updates)
+            except BaseException as error:
+                if not is_interrupt(error):
+                    raise
+                if pending is not None:  # log the interrupted batch so the CSV matches
+                    pending["wall_s"] = round(time.perf_counter() - start, 3)
+                    writer.writerow(pending)
                 save_checkpoint(checkpoint, session_state(session))
-                next_checkpoint += experiment.checkpoint_interval
-            if progress is not None:
-                progress.update(data.numel())
-                progress.set_postfix(ret=row["episode_return"], upd=session.updates)
-    collector.shutdown()
-    if progress is not None:
-        progress.close()
+                raise KeyboardInterrupt(
+                    f"checkpoint of {session.frames} frames saved in {checkpoint}"
+                ) from None
+    finally:
+        if progress is not None:
+            progress.close()
+        collector.shutdown()
 
 
 def _progress(enabled: bool, total: int, initial: int):

@@ -1,0 +1,208 @@
+"""GA-SAC trainer: resuming (metrics rows, option checks), frames reporting and Ctrl-C.
+
+Tiny runs (3 robots × 10 poses, 4 envs, 32-frame batches, one update per batch): each `train`
+call takes a few seconds on one CPU core.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+import signal
+
+import pytest
+
+from agents.checkpoint import ResumeConfigError, read_checkpoint
+from agents.config import PRESETS, AlgorithmConfig, ExperimentConfig, ModelConfig, TrainConfig
+
+TINY = ModelConfig(
+    hidden=8,
+    layers=2,
+    edge_hidden=4,
+    gate_hidden=8,
+    memory_hidden=8,
+    edge_head_hidden=12,
+    correction_hidden=(16, 16),
+    critic_hidden=8,
+    critic_layers=2,
+    critic_projection=16,
+    critic_mlp=(16, 8),
+)
+
+
+def tiny(out_dir, frames: int, **experiment) -> TrainConfig:
+    """One update per 32-frame batch from the first batch on; checkpoints every 64 frames."""
+    options = dict(
+        robots=3,
+        poses_per_robot=10,
+        num_envs=4,
+        frames=frames,
+        frames_per_batch=32,
+        checkpoint_interval=64,
+        eval_interval=10_000,
+        eval_problems=2,
+        out_dir=str(out_dir),
+        progress=False,
+    )
+    options.update(experiment)
+    return TrainConfig(
+        model=TINY,
+        algorithm=AlgorithmConfig(warmup_frames=32, batch_size=8, buffer_size=256),
+        experiment=ExperimentConfig(**options),
+    )
+
+
+def metric_frames(out_dir) -> list[int]:
+    with (out_dir / "metrics.csv").open() as handle:
+        return [int(row["frames"]) for row in csv.DictReader(handle)]
+
+
+def fail_at_update(monkeypatch, number: int, action) -> None:
+    """Make the `number`-th optimisation step of the next run call `action()` first."""
+    import agents.trainer as trainer
+
+    original, calls = trainer.optimise, [0]
+
+    def optimise(session, batch):
+        calls[0] += 1
+        if calls[0] == number:
+            action()
+        return original(session, batch)
+
+    monkeypatch.setattr(trainer, "optimise", optimise)
+
+
+def test_resume_after_a_crash_logs_each_batch_once_and_reports_frames(
+    tmp_path, monkeypatch
+) -> None:
+    from agents.trainer import train
+
+    # A run that dies in its 4th batch (after the checkpoint at 64 frames, with the batch at 96
+    # frames logged) — what `kill -9` between two checkpoints leaves.
+    def crash() -> None:
+        raise OSError("simulated crash")
+
+    with monkeypatch.context() as patch:
+        fail_at_update(patch, 4, crash)
+        with pytest.raises(OSError, match="simulated crash"):
+            train(tiny(tmp_path, 128), resume=False)
+    assert read_checkpoint(tmp_path / "checkpoint.pt")["frames"] == 64
+    assert metric_frames(tmp_path) == [32, 64, 96]
+
+    result = train(tiny(tmp_path, 128), resume=True)
+    assert metric_frames(tmp_path) == [32, 64, 96, 128]
+    with (tmp_path / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["updates"]) for r in rows] == [1, 2, 3, 4]
+    walls = [float(r["wall_s"]) for r in rows]
+    assert walls == sorted(walls)  # wall_s continues across the resume
+    assert (result.frames_trained, result.frames, result.resumed_from) == (64, 128, 64)
+    assert result.summary() == (
+        f"trained 64 frames (resumed at 64; 128 in total); run directory {tmp_path}"
+    )
+    assert str(result) == os.fspath(result) == str(tmp_path)
+
+    # Asking for fewer frames than the run has trains nothing and says so.
+    nothing = train(tiny(tmp_path, 100), resume=True)
+    assert (nothing.frames_trained, nothing.frames) == (0, 128)
+    assert nothing.summary().startswith("nothing to train: the run already has 128 frames")
+    assert metric_frames(tmp_path) == [32, 64, 96, 128]
+
+
+def test_frames_trained_counts_whole_batches(tmp_path) -> None:
+    from agents.trainer import train
+
+    result = train(tiny(tmp_path, 1), resume=False)
+    assert (result.frames_trained, result.frames, result.resumed_from) == (32, 32, 0)
+    assert result.summary() == f"trained 32 frames; run directory {tmp_path}"
+
+
+def test_resume_with_other_options_is_a_one_line_error(tmp_path) -> None:
+    from agents.trainer import train
+
+    train(tiny(tmp_path, 32), resume=False)
+    before = (tmp_path / "metrics.csv").read_text()
+
+    for changed, expected in (
+        (dict(robots=2), ["--robots 3 (requested 2)"]),
+        (dict(noise="V1", seed=5), ["--env V2 (requested V1)", "--seed 0 (requested 5)"]),
+        (dict(num_envs=2), ["experiment.num_envs 4 (requested 2)"]),
+    ):
+        config = tiny(tmp_path, 64, **changed)
+        with pytest.raises(ResumeConfigError) as error:
+            train(config, resume=True)
+        message = str(error.value)
+        assert "\n" not in message and len(message) < 400, message
+        assert all(part in message for part in expected), message
+        assert "--no-resume" in message and "--out" in message
+    model = dataclasses.replace(TINY, hidden=16)
+    with pytest.raises(ResumeConfigError, match=r"model\.hidden 8 \(requested 16\)"):
+        train(dataclasses.replace(tiny(tmp_path, 64), model=model), resume=True)
+    assert (tmp_path / "metrics.csv").read_text() == before  # nothing was appended
+
+    # device, frames, out_dir and progress may change; --no-resume starts a new run.
+    from agents.trainer import resume_differences
+
+    stored = tiny(tmp_path, 32)
+    free = dataclasses.replace(
+        stored.experiment, device="cuda", frames=10**6, out_dir="elsewhere", progress=True
+    )
+    assert resume_differences(stored, dataclasses.replace(stored, experiment=free)) == []
+    fresh = train(tiny(tmp_path, 32, robots=2), resume=False)
+    assert (fresh.frames_trained, fresh.resumed_from) == (32, 0)
+
+
+def test_resume_names_a_changed_preset() -> None:
+    from agents.trainer import resume_differences
+
+    paper, small = PRESETS["paper"], PRESETS["cpu-small"]
+    assert resume_differences(paper, small) == ["--preset paper (requested cpu-small)"]
+    assert resume_differences(small, small) == []
+
+
+def test_ctrl_c_during_an_update_finishes_it_saves_and_raises(tmp_path, monkeypatch) -> None:
+    """SIGINT in an optimisation step: the step completes, then checkpoint + KeyboardInterrupt."""
+    from agents.trainer import train
+
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("SIGINT has a custom handler in this process")
+    fail_at_update(monkeypatch, 3, lambda: os.kill(os.getpid(), signal.SIGINT))
+    with pytest.raises(KeyboardInterrupt, match="checkpoint of 96 frames saved"):
+        train(tiny(tmp_path, 256), resume=False)
+    state = read_checkpoint(tmp_path / "checkpoint.pt")
+    assert (state["frames"], state["updates"]) == (96, 3)  # the 3rd step was not cut short
+    assert metric_frames(tmp_path) == [32, 64, 96]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_keyboard_interrupt_inside_the_loss_stays_a_keyboard_interrupt(
+    tmp_path, monkeypatch
+) -> None:
+    """A KeyboardInterrupt raised inside `with params.to_module(...)` (agents.loss) became
+    `RuntimeError: Converting a tensordict to boolean value` (tensordict 0.14's __exit__)."""
+    from agents.actor import HybridActor
+    from agents.trainer import train
+
+    forward, armed = HybridActor.forward, [False]
+
+    def interrupted_forward(self, *args, **kwargs):
+        if armed[0]:
+            raise KeyboardInterrupt
+        return forward(self, *args, **kwargs)
+
+    def arm() -> None:
+        armed[0] = True
+
+    monkeypatch.setattr(HybridActor, "forward", interrupted_forward)
+    fail_at_update(monkeypatch, 3, arm)
+    with pytest.raises(KeyboardInterrupt, match="checkpoint of 96 frames saved"):
+        train(tiny(tmp_path, 256), resume=False)
+    state = read_checkpoint(tmp_path / "checkpoint.pt")
+    assert (state["frames"], state["updates"]) == (96, 2)
+    assert metric_frames(tmp_path) == [32, 64, 96]
+
+    armed[0] = False
+    result = train(tiny(tmp_path, 128), resume=True)
+    assert (result.resumed_from, result.frames) == (96, 128)
+    assert metric_frames(tmp_path) == [32, 64, 96, 128]
