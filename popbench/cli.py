@@ -534,8 +534,7 @@ def train(
     from agents.trainer import train as run_training
 
     config = train_config(env, robots, seed, frames, device, out, preset)
-    run_dir = run_training(config, resume=resume)
-    typer.echo(f"trained {config.experiment.frames} frames; run directory {run_dir}")
+    typer.echo(run_training(config, resume=resume).summary())
 
 
 # ----- entry point --------------------------------------------------------------------------
@@ -573,8 +572,9 @@ def main(argv: list[str] | None = None) -> int:
     except typer.Abort:
         sys.stderr.write("popbench: aborted\n")
         return EXIT_RUNTIME
-    except KeyboardInterrupt:
-        sys.stderr.write("popbench: interrupted\n")
+    except KeyboardInterrupt as error:
+        detail = f" ({error})" if str(error) else ""
+        sys.stderr.write(f"popbench: interrupted{detail}\n")
         return 130
     except Exception as error:  # noqa: BLE001 - the one place errors become a message
         if os.environ.get("POPBENCH_DEBUG"):
