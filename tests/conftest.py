@@ -50,3 +50,34 @@ def require_dataset(name: str):
         return datasets.load(name)
     except datasets.DatasetUnavailableError as error:
         data_missing(f"dataset {name} unavailable: {error}")
+
+
+def ring_g2o(path, n: int = 8, dx: str = "0.77"):
+    """Write a tiny g2o ring to ``path``: n poses, n odometry edges (the last closes the loop);
+    ``dx`` is the forward measurement of the first edge (the others measure 0.77)."""
+    lines = [f"VERTEX_SE2 {i} {np.cos(i):.3f} {np.sin(i):.3f} 0" for i in range(n)]
+    lines += [
+        f"EDGE_SE2 {i} {(i + 1) % n} {dx if i == 0 else 0.77} 0.01 0.8 100 0 0 100 0 400"
+        for i in range(n)
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def tiny_model():
+    """The smallest agents.config.ModelConfig the agent tests train and run (fast on a CPU)."""
+    from agents.config import ModelConfig
+
+    return ModelConfig(
+        hidden=8,
+        layers=2,
+        edge_hidden=4,
+        gate_hidden=8,
+        memory_hidden=8,
+        edge_head_hidden=12,
+        correction_hidden=(16, 16),
+        critic_hidden=8,
+        critic_layers=2,
+        critic_projection=16,
+        critic_mlp=(16, 8),
+    )

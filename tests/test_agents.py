@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from conftest import tiny_model
 from torch.distributions import Normal, TanhTransform, TransformedDistribution
 
 from agents.actor import GASACPolicy, HybridActor, tanh_gaussian_log_prob
@@ -22,19 +23,7 @@ from agents.encoder import (
 )
 
 NODE_DIM, EDGE_DIM = 6, 11
-SMALL = ModelConfig(
-    hidden=8,
-    layers=2,
-    edge_hidden=4,
-    gate_hidden=8,
-    memory_hidden=8,
-    edge_head_hidden=12,
-    correction_hidden=(16, 16),
-    critic_hidden=8,
-    critic_layers=2,
-    critic_projection=16,
-    critic_mlp=(16, 8),
-)
+SMALL = tiny_model()
 
 
 def random_graphs(graphs: int, vertices: int = 7, edges: int = 9, seed: int = 0) -> GraphBatch:

@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import ring_g2o
 
 from popbench.harness import reports
 from popbench.harness.cache import CellCache, cell_key
@@ -152,18 +153,6 @@ def test_scalability_and_trajectory_figures(tmp_path):
 # ----- cache keys: what a cell is computed from -------------------------------------------------
 
 
-def _ring(path, n=8, dx="0.77"):
-    """A tiny g2o ring: n poses, n odometry edges (the last closes the loop); ``dx`` is the
-    forward measurement of the first edge (the others measure 0.77)."""
-    lines = [f"VERTEX_SE2 {i} {np.cos(i):.3f} {np.sin(i):.3f} 0" for i in range(n)]
-    lines += [
-        f"EDGE_SE2 {i} {(i + 1) % n} {dx if i == 0 else 0.77} 0.01 0.8 100 0 0 100 0 400"
-        for i in range(n)
-    ]
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
 def _specs(experiment, dataset, method="mm-pgo"):
     """The cell specifications of one cell of ``experiment`` on ``dataset``."""
     from popbench.harness import outliers, scalability, table1
@@ -183,10 +172,10 @@ def _specs(experiment, dataset, method="mm-pgo"):
 
 @pytest.mark.parametrize("experiment", ["table1", "outliers", "scalability"])
 def test_cell_keys_change_when_the_graph_file_changes(tmp_path, experiment):
-    graph = _ring(tmp_path / "u.g2o")
+    graph = ring_g2o(tmp_path / "u.g2o")
     before = [cell_key(spec) for spec in _specs(experiment, str(graph))]
     assert before == [cell_key(spec) for spec in _specs(experiment, str(graph))]  # stable
-    _ring(graph, dx="0.951")  # one measurement edited (and the size changed)
+    ring_g2o(graph, dx="0.951")  # one measurement edited (and the size changed)
     after = [cell_key(spec) for spec in _specs(experiment, str(graph))]
     assert not set(before) & set(after)
 

@@ -9,9 +9,9 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
+from conftest import ring_g2o
 
 from popbench.cli import main
 
@@ -98,18 +98,6 @@ def test_killed_run_recomputes_no_finished_cell(tmp_path, mit):
 # ----- in-process CLI on a tiny graph (no dataset needed) ----------------------------------------
 
 
-def _ring(path, n=8, dx="0.77"):
-    """A tiny g2o ring: n poses, n odometry edges (the last closes the loop); ``dx`` is the
-    forward measurement of the first edge (the others measure 0.77)."""
-    lines = [f"VERTEX_SE2 {i} {np.cos(i):.3f} {np.sin(i):.3f} 0" for i in range(n)]
-    lines += [
-        f"EDGE_SE2 {i} {(i + 1) % n} {dx if i == 0 else 0.77} 0.01 0.8 100 0 0 100 0 400"
-        for i in range(n)
-    ]
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
 def _run(capsys, *args):
     code = main([str(arg) for arg in args])
     out, err = capsys.readouterr()
@@ -117,7 +105,7 @@ def _run(capsys, *args):
 
 
 def test_an_edited_graph_file_is_recomputed_and_fresh_recomputes(tmp_path, capsys):
-    graph = _ring(tmp_path / "u.g2o")
+    graph = ring_g2o(tmp_path / "u.g2o")
     out = tmp_path / "D"
     args = ("run", "table1", "--datasets", graph, "--robots", "1", "--methods", "mm-pgo")
     args += ("--iterations", "5", "--out", out)
@@ -130,7 +118,7 @@ def test_an_edited_graph_file_is_recomputed_and_fresh_recomputes(tmp_path, capsy
     first = f()
     code, _, err = _run(capsys, *args)
     assert code == 0 and "1 of 1 cells already finished" in err
-    _ring(graph, dx="0.951")  # one measurement edited (and the size changed)
+    ring_g2o(graph, dx="0.951")  # one measurement edited (and the size changed)
     code, _, err = _run(capsys, *args)
     assert code == 0, err
     assert "already finished" not in err  # neither the optimum nor the cell is reused
@@ -153,7 +141,7 @@ def _one_error_line(err: str, start: str) -> None:
     ],
 )
 def test_table1_rejects_bad_inputs_before_any_work(tmp_path, capsys, options, message):
-    graph = _ring(tmp_path / "u.g2o")
+    graph = ring_g2o(tmp_path / "u.g2o")
     options = [o.format(graph=graph, tmp=tmp_path) for o in options]
     out = tmp_path / "D"
     code, stdout, err = _run(
@@ -175,7 +163,7 @@ def test_table1_rejects_bad_inputs_before_any_work(tmp_path, capsys, options, me
     ],
 )
 def test_outliers_and_scalability_reject_bad_inputs_before_any_work(tmp_path, capsys, args):
-    graph = _ring(tmp_path / "u.g2o")
+    graph = ring_g2o(tmp_path / "u.g2o")
     out = tmp_path / "D"
     args = [a.format(graph=graph) for a in args]
     code, _, err = _run(capsys, *args, "--methods", "mm-pgo", "--out", out)

@@ -12,23 +12,12 @@ import os
 import signal
 
 import pytest
+from conftest import tiny_model
 
 from agents.checkpoint import ResumeConfigError, read_checkpoint
-from agents.config import PRESETS, AlgorithmConfig, ExperimentConfig, ModelConfig, TrainConfig
+from agents.config import PRESETS, AlgorithmConfig, ExperimentConfig, TrainConfig
 
-TINY = ModelConfig(
-    hidden=8,
-    layers=2,
-    edge_hidden=4,
-    gate_hidden=8,
-    memory_hidden=8,
-    edge_head_hidden=12,
-    correction_hidden=(16, 16),
-    critic_hidden=8,
-    critic_layers=2,
-    critic_projection=16,
-    critic_mlp=(16, 8),
-)
+TINY = tiny_model()
 
 
 def tiny(out_dir, frames: int, **experiment) -> TrainConfig:
