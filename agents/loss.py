@@ -10,7 +10,9 @@ Per agent i (rewards are per agent; the critic gives one Q_i per agent, MAAC-sty
   soft value V_i(s) = min_k Q̄_k,i(s, a) + α_e H[π(· | s)] − α_δ log π(δ | s, e),  a ~ π
   critic:  L_Q = Σ_k E[ρ(Q_k,i(s, a) − y_i)],  y_i = c·r_i + γ (1 − terminated_i) V_i(s′),
            ρ = Huber(d) (½ δ² inside |δ| ≤ d; ½ δ², SAC's, when huber_delta is None)
-  actor:   L_π = E[−α_e H[π(· | s)] + α_δ log π(δ | s, e) − min_k Q_k,i(s, ã)] + λ_gate · mean z
+  actor:   L_π = E[−α_e H[π(· | s)] + α_δ log π(δ | s, e) − min_k Q_k,i(s, ã)] + λ_gate · mean z,
+           with Q_i differentiated through agent i's own action ã_i only (the others' enter
+           Q_i as constants: CentralCritic's own_action_only, as in MADDPG / MAAC)
   α_e:     L = E[log α_e · (H[π(· | s)] − H̄_e(s))],   H̄_e(s) = ratio · log |allowed edges|
   α_δ:     L = −E[log α_δ · (log π(δ | s, e) + H̄_δ)],  H̄_δ = −3
 
@@ -198,7 +200,9 @@ class GASACLoss(LossModule):
         # Actor: reparameterised hybrid action against the (detached) critic.
         out = self._act(tensordict, graphs, next_=False)
         with self.critic_network_params.detach().to_module(self.critic_network):
-            q_policy, _ = self.critic_network(graphs, out.edge_weights, out.delta)
+            q_policy, _ = self.critic_network(
+                graphs, out.edge_weights, out.delta, own_action_only=True
+            )
         acting = self._acting(out)
         delta_log_prob = acting * out.delta_log_prob
         loss_actor = (

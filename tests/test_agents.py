@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 from conftest import tiny_model
+from torch import Tensor
 from torch.distributions import Normal, TanhTransform, TransformedDistribution
 
 from agents.actor import GASACPolicy, HybridActor, tanh_gaussian_log_prob
@@ -249,6 +250,34 @@ def test_critic_shapes_and_action_sensitivity() -> None:
     assert q.shape == (2, 3, 2)
     q_other, _ = critic(graphs, edges, torch.full((6, 3), 0.1), deterministic=True)
     assert not torch.allclose(q, q_other)
+
+
+def test_actor_loss_moves_each_correction_by_its_own_q_only() -> None:
+    """own_action_only: same Q values; ∂Q_i/∂δ_j vanishes for j ≠ i and not for j = i (without
+    it the cross terms are live: Q_i reads every agent's action through the joint input)."""
+    torch.manual_seed(0)
+    critic = CentralCritic(NODE_DIM, EDGE_DIM, agents=3, config=SMALL)
+    graphs = random_graphs(2 * 3)
+    choices = graphs.action_mask.shape[-1]
+    edges = torch.nn.functional.one_hot(torch.tensor([1, 2, 3, 4, 5, 6]), choices).float()
+    delta = (0.1 * torch.randn(6, 3)).requires_grad_(True)
+
+    def jacobian(own_action_only: bool) -> tuple[Tensor, Tensor]:
+        q, _ = critic(graphs, edges, delta, deterministic=True, own_action_only=own_action_only)
+        rows = [
+            torch.autograd.grad(q[:, i, 0].sum(), delta, retain_graph=True)[0].view(2, 3, 3)
+            for i in range(3)
+        ]
+        return q.detach(), torch.stack(rows, 1)  # [B, i, j, 3]: ∂Q_i / ∂δ_j
+
+    q_own, own = jacobian(True)
+    q_all, live = jacobian(False)
+    torch.testing.assert_close(q_own, q_all)
+    diagonal = torch.eye(3, dtype=torch.bool)[None, :, :, None].expand_as(own)
+    assert float(own[~diagonal].abs().max()) == 0.0
+    assert float(own[diagonal].abs().min()) > 0.0
+    assert float(live[~diagonal].abs().max()) > 0.0
+    torch.testing.assert_close(own[diagonal], live[diagonal])
 
 
 def test_edge_embeddings_carry_the_edge_residual_in_the_tail_frame() -> None:
