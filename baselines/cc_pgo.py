@@ -37,6 +37,7 @@ def solve(
     accelerated: bool = True,
     rtr_iterations: int = 1,
     tcg_iterations: int = 10,
+    rounding: str = "svd",
     **_: object,
 ) -> Result:
     """Solve ``problem`` with CC-PGO.
@@ -52,6 +53,8 @@ def solve(
         accelerated: RBCD++ (default) or plain RBCD.
         rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
         tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
+        rounding: ``"svd"`` (SE-Sync's rounding, default) or ``"anchor"`` (dpgo's); see
+            :func:`baselines.rbcd.rounding_basis`.
     """
     graph = problem.graph
     robots = np.zeros(graph.num_poses, np.int64) if graph.robots is None else graph.robots
@@ -60,5 +63,6 @@ def solve(
         restart="fixed",
         selection=selection,
         local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
+        rounding=rounding,
     )
     return solve_rbcd(graph, robots, budget or Budget(), options, init, rank, certify, seed)

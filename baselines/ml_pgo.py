@@ -35,6 +35,7 @@ def solve(
     selection: str = "greedy",
     rtr_iterations: int = 1,
     tcg_iterations: int = 10,
+    rounding: str = "svd",
     **_: object,
 ) -> Result:
     """Solve ``problem`` with ML-PGO.
@@ -50,6 +51,8 @@ def solve(
         selection: ``"greedy"`` or ``"round-robin"`` colour-class selection.
         rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
         tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
+        rounding: ``"svd"`` (SE-Sync's rounding, default) or ``"anchor"`` (dpgo's); see
+            :func:`baselines.rbcd.rounding_basis`.
     """
     graph = problem.graph
     if repartition or graph.robots is None:
@@ -61,5 +64,6 @@ def solve(
         restart="adaptive",
         selection=selection,
         local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
+        rounding=rounding,
     )
     return solve_rbcd(graph, robots, budget or Budget(), options, init, rank, certify, seed)

@@ -256,20 +256,50 @@ def lift(poses: np.ndarray, lift_rows: np.ndarray) -> np.ndarray:
     return x
 
 
-def round_solution(x: np.ndarray, anchor: int, anchor_pose: np.ndarray) -> np.ndarray:
-    """Round ``X`` ``(N, 3, r)`` to poses ``(N, 3)`` (dpgo ``getTrajectoryInGlobalFrame``, §2.8).
+ROUNDINGS = ("svd", "anchor")
 
-    With the anchor's ``Y_a``: ``R_i ≈ Y_aᵀ Y_i`` projected onto SO(2) (the nearest rotation,
-    ``θ = atan2(M₁₀ − M₀₁, M₀₀ + M₁₁)``, which is the SVD projection with the determinant fix)
-    and ``t_i = Y_aᵀ (p_i − p_a)``; the result is expressed so that the anchor sits at
-    ``anchor_pose`` ``(3,)`` (the gauge).
+
+def rounding_basis(x: np.ndarray, anchor: int, rounding: str = "svd") -> np.ndarray:
+    """The ``(r, 2)`` orthonormal basis ``U`` onto which :func:`round_solution` projects ``X``.
+
+    ``"svd"`` (SE-Sync's rounding, Rosen et al. 2019, Alg. 2): the top-2 left singular vectors
+    of ``Y = [Y_1 … Y_N]`` (``r × 2N``), i.e. the top eigenvectors of ``Y Yᵀ = Σ_i Y_i Y_iᵀ``,
+    an ``r × r`` sum of per-robot terms (each robot sends one ``r × r`` matrix, so it stays
+    distributed), with the second column negated when most ``det(Y_iᵀ U) < 0`` (the reflection
+    fix). ``"anchor"`` (dpgo ``getTrajectoryInGlobalFrame``, §2.8): ``U = Y_a``, the anchor's
+    lifted rotation. At a rank-2 ``X`` the two agree; away from one (an unconverged iterate that
+    still uses the extra dimensions, e.g. after 1000 rounds from the odometry start) the anchor
+    basis discards everything orthogonal to one pose's plane, the SVD basis the least energy.
     """
-    anchor_rows = x[anchor, :2]  # Y_aᵀ (2, r)
-    m = anchor_rows @ np.swapaxes(x[:, :2], 1, 2)  # Y_aᵀ Y_i, (N, 2, 2)
-    headings = np.arctan2(m[:, 1, 0] - m[:, 0, 1], m[:, 0, 0] + m[:, 1, 1])
-    translations = (x[:, 2] - x[anchor, 2]) @ anchor_rows.T  # (N, 2)
-    relative = np.column_stack([translations, headings])
-    return se2.compose(anchor_pose[None, :], relative)
+    if rounding == "anchor":
+        return x[anchor, :2].T.copy()
+    if rounding != "svd":
+        raise ValueRangeError("rounding", rounding, " or ".join(ROUNDINGS))
+    rotation_rows = flat(x[:, :2])  # (2N, r): the rows Y_iᵀ
+    _, vectors = np.linalg.eigh(rotation_rows.T @ rotation_rows)
+    basis = vectors[:, [-1, -2]]  # the two largest eigenvalues
+    m = x[:, :2] @ basis  # (N, 2, 2): Y_iᵀ U
+    determinants = m[:, 0, 0] * m[:, 1, 1] - m[:, 0, 1] * m[:, 1, 0]
+    if np.count_nonzero(determinants > 0) < 0.5 * determinants.size:
+        basis[:, 1] *= -1.0
+    return basis
+
+
+def round_solution(
+    x: np.ndarray, anchor: int, anchor_pose: np.ndarray, rounding: str = "svd"
+) -> np.ndarray:
+    """Round ``X`` ``(N, 3, r)`` to poses ``(N, 3)``.
+
+    With the basis ``U`` of :func:`rounding_basis`: ``R_iᵀ ≈ Y_iᵀ U`` projected onto SO(2) (the
+    nearest rotation, ``θ = atan2(M₀₁ − M₁₀, M₀₀ + M₁₁)`` for ``M = Y_iᵀ U``, which is the SVD
+    projection with the determinant fix) and ``t_i = Uᵀ p_i``; the result is expressed so that
+    the anchor sits at ``anchor_pose`` ``(3,)`` (the gauge).
+    """
+    basis = rounding_basis(x, anchor, rounding)
+    m = x[:, :2] @ basis  # (N, 2, 2) = R_iᵀ up to the projection
+    headings = np.arctan2(m[:, 0, 1] - m[:, 1, 0], m[:, 0, 0] + m[:, 1, 1])
+    poses = np.column_stack([x[:, 2] @ basis, headings])
+    return se2.compose(anchor_pose[None, :], se2.between(poses[anchor][None, :], poses))
 
 
 def certificate_min_eigenvalue(q: sp.spmatrix, x: np.ndarray) -> float:
@@ -662,6 +692,8 @@ class RBCDOptions:
         local: the robots' trust-region settings.
         batch_below: robots of a class with fewer poses than this update together as one
             block-diagonal batch, the others one by one (see :func:`batch_groups`).
+        rounding: ``"svd"`` (SE-Sync's, the default) or ``"anchor"`` (dpgo's); see
+            :func:`rounding_basis`.
     """
 
     accelerated: bool = True
@@ -670,6 +702,7 @@ class RBCDOptions:
     selection: str = "greedy"
     local: LocalOptions = LocalOptions()
     batch_below: int = BATCH_BELOW_POSES
+    rounding: str = "svd"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -866,7 +899,7 @@ def solve_rbcd(
     setup_s = time.perf_counter() - initialised
     run = run_rbcd(q, batches, num_robots, x0, budget, options)
     anchor = 0  # vertex 0 (owned by robot 0) keeps its estimate: the gauge
-    poses = round_solution(run.x, anchor, graph.poses[anchor])
+    poses = round_solution(run.x, anchor, graph.poses[anchor], options.rounding)
     costs = objective.evaluate(graph, poses)
     wall_s = time.perf_counter() - start
     extras = {

@@ -11,6 +11,7 @@ from conftest import require_dataset
 from baselines import cc_pgo, ml_pgo, rbcd
 from popbench import objective, se2
 from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
 from popbench.methods import Budget, get_method
 from popbench.partition import partition, partition_report
 
@@ -57,12 +58,54 @@ def test_riemannian_gradient_and_hessian_match_finite_differences(small_graph, r
     assert np.vdot(gradient[:, :2], normal) == pytest.approx(0.0, abs=1e-9)
 
 
-def test_rounding_a_lifted_embedding_returns_the_poses(small_graph):
+@pytest.mark.parametrize("rounding", rbcd.ROUNDINGS)
+def test_rounding_a_lifted_embedding_returns_the_poses(small_graph, rounding):
     truth = small_graph.ground_truth
     lifted = rbcd.lift(se2.compose(np.array([3.0, -1.0, 0.7]), truth), rbcd.random_stiefel(5, 1))
-    rounded = rbcd.round_solution(lifted, anchor=0, anchor_pose=truth[0])
+    rounded = rbcd.round_solution(lifted, anchor=0, anchor_pose=truth[0], rounding=rounding)
     np.testing.assert_allclose(rounded[:, :2], truth[:, :2], atol=1e-10)
     np.testing.assert_allclose(se2.wrap(rounded[:, 2] - truth[:, 2]), 0.0, atol=1e-10)
+
+
+def test_svd_rounding_fixes_the_reflection_and_ignores_orthogonal_changes_of_the_lift(
+    small_graph, rng
+):
+    truth = small_graph.ground_truth
+    lifted = rbcd.lift(truth, rbcd.random_stiefel(5, 2))
+    reference = rbcd.round_solution(lifted, anchor=4, anchor_pose=truth[4])
+    flips = 0
+    for _ in range(12):  # X -> X O, O in O(r) with det ±1: the same cost, the same rounding
+        orthogonal, _ = np.linalg.qr(rng.normal(size=(5, 5)))
+        turned = lifted @ orthogonal
+        basis = rbcd.rounding_basis(turned, anchor=4)
+        np.testing.assert_allclose(basis.T @ basis, np.eye(2), atol=1e-12)
+        m = turned[:, :2] @ basis
+        assert np.all(np.linalg.det(m) > 0)  # R_iᵀ, not reflections
+        _, vectors = np.linalg.eigh(rbcd.flat(turned[:, :2]).T @ rbcd.flat(turned[:, :2]))
+        flips += np.linalg.det(turned[0, :2] @ vectors[:, [-1, -2]]) < 0  # needed the fix
+        rounded = rbcd.round_solution(turned, anchor=4, anchor_pose=truth[4])
+        np.testing.assert_allclose(rounded[:, :2], reference[:, :2], atol=1e-9)
+        np.testing.assert_allclose(se2.wrap(rounded[:, 2] - reference[:, 2]), 0.0, atol=1e-9)
+    assert 0 < flips < 12  # both orientations of the eigenvector basis occurred
+
+
+def test_svd_rounding_keeps_the_dominant_plane_of_an_unconverged_iterate(small_graph, rng):
+    """X = lift(poses) + a weaker component in a third direction (what an unconverged iterate
+    looks like): the SVD basis is the poses' plane whatever the anchor; the anchor's own rows
+    are tilted by the extra component, and its rounding is worse."""
+    truth = small_graph.ground_truth
+    lift_rows = rbcd.random_stiefel(5, 3)
+    extra = np.linalg.qr(np.column_stack([lift_rows.T, rng.normal(size=5)]))[0][:, 2]
+    lifted = rbcd.lift(truth, lift_rows)
+    lifted[:, :2] += 0.3 * rng.normal(size=(truth.shape[0], 2, 1)) * extra
+    lifted = rbcd.project_manifold(lifted)
+    costs = {}
+    for rounding in rbcd.ROUNDINGS:
+        rounded = rbcd.round_solution(lifted, anchor=0, anchor_pose=truth[0], rounding=rounding)
+        costs[rounding] = objective.chordal_objective(small_graph, rounded)
+    assert costs["svd"] < costs["anchor"]
+    with pytest.raises(ValueRangeError, match="rounding"):
+        rbcd.rounding_basis(lifted, 0, "nearest")
 
 
 def test_colour_classes_are_independent_sets_covering_every_robot(small_graph):
