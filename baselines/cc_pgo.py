@@ -2,9 +2,11 @@
 
 Rank-``r`` Burer–Monteiro relaxation (``r = 5``), centralised chordal initialisation lifted by a
 seeded random ``St(2, r)`` matrix, Nesterov-accelerated Riemannian block-coordinate descent with a
-**fixed restart every 30 iterations**, greedy block selection and rounding (REFERENCES §2). The
-blocks are the problem's own vertex → robot assignment (``problem.graph.robots``). One iteration
-= one colour class of non-adjacent robots updating in parallel (see :mod:`baselines.rbcd`).
+**fixed restart every 30 iterations**, greedy block selection and rounding to SE(2) (REFERENCES
+§2; SE-Sync's SVD rounding by default, dpgo's anchor rounding with ``rounding="anchor"``, see
+:mod:`baselines.rbcd`). The blocks are the problem's own vertex → robot assignment
+(``problem.graph.robots``). One iteration = one colour class of non-adjacent robots updating in
+parallel (see :mod:`baselines.rbcd`).
 
 Known property (measured, benchmarks/bench_rbcd.py): with 35 robots the fixed restart limits the
 acceleration, and 1000 rounds from the chordal start end 3.7e-3 (mit) and 1.4e-3 (m3500) above

@@ -70,6 +70,19 @@ inside the compiled sparse kernels alone (products and Cholesky solves; n = 7, c
 one run) is 15× (ml-pgo) and 30× (cc-pgo) on m3500, above the target by itself, and 4.8× and
 9.5× on city10k (bench_rbcd.py prints both ratios).
 
+**Rounding** (:func:`round_solution`). By default SE-Sync's: project every ``X_i`` onto the
+top-2 eigenvectors ``U`` of ``Σ_i Y_i Y_iᵀ`` (``r × r``, summed over robots, so one small message
+per robot), with the reflection fixed by a determinant vote, then each ``Y_iᵀ U`` to its nearest
+rotation. dpgo's anchor rounding (``U = Y_a``, REFERENCES §2.8) is ``rounding="anchor"``. The two
+agree at a rank-2 iterate (every converged run here), but not at an unconverged one: after 1000
+rounds from the odometry start (n = 7, METIS) the rank-5 iterates still have σ₃/σ₁ = 0.1–0.7 on
+mit (cc-pgo), m3500, m3500b/c and city10k (cc-pgo), with a relaxed ``2f`` close to the optimum
+(m3500: 281 cc-pgo / 198 ml-pgo against 193.86) yet far worse rounded poses. F_chordal of the
+rounded poses, anchor → SVD: mit cc-pgo 352 → 97.5; m3500 cc-pgo 97,385 → 23,108, ml-pgo 2,245
+→ 1,546; m3500b cc-pgo 224,503 → 115,333, ml-pgo 158,490 → 182,612 (the one cell where it is
+worse); m3500c 86,078 / 80,954 → 56,264 / 60,350; city10k cc-pgo 1,022 → 704; equal to print
+precision on intel, csail, grid1000, mit/city10k ml-pgo (measured 2026-12-01).
+
 **Accounting.** ``parallel_s`` = Σ over rounds of (the slowest updating robot's local update time
 + the round's vectorised bookkeeping — extrapolation, gradient norms, objective — divided by the
 number of robots, as each robot would do its share). A robot's local update time is modelled
