@@ -14,6 +14,8 @@ episodes than they ran). For each problem, from its odometry start:
     random       a random policy (uniform unprocessed edge, uniform δ in [−Δmax, Δmax]) for the
                  same episode, then the same consensus;
     prop-v1      the trained actor's episode, then the same consensus;
+    actor only   F of prop-v1's copies after the episode, before the consensus (each vertex from
+                 its owner's copy; no ATE): against `initial`, what the policy itself did;
 and two bounds on what *any* local policy could add before the same consensus:
     local-opt    every robot's local graph solved to its own optimum (`lm`, 100 iterations,
                  from its starting copies, local vertex 0 fixed), then the consensus;
@@ -116,6 +118,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
         "consensus": [],
         "random": [],
         "prop-v1": [],
+        "actor only": [],
         "local-opt": [],
         "truth": [],
     }
@@ -133,7 +136,9 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
         record(
             "random", admm_consensus(problem, random_policy_copies(problem, delta_max, rng)).poses
         )
-        record("prop-v1", solve_prop_v1(problem, Budget(), checkpoint=checkpoint).poses)
+        prop_v1 = solve_prop_v1(problem, Budget(), checkpoint=checkpoint)
+        record("prop-v1", prop_v1.poses)
+        rows["actor only"].append((prop_v1.extras["F_actor"], np.nan))
         record("local-opt", admm_consensus(problem, local_optima(problem)).poses)
         record("truth", admm_consensus(problem, problem.split(truth)).poses)
     print(
@@ -147,12 +152,15 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
     initial = np.array(rows["initial"])
     for name, values in rows.items():
         values = np.array(values)
-        better_f = np.mean(values[:, 0] < initial[:, 0])
+        f_columns = f"{name:>10} {values[:, 0].mean():>10.4g} {np.median(values[:, 0]):>10.4g} "
+        better_f = f"{np.mean(values[:, 0] < initial[:, 0]):>10.0%}"
+        if np.isnan(values[:, 1]).all():  # no ATE for this row
+            print(f"{f_columns}{'-':>11} {'-':>11} {better_f} {'-':>12}")
+            continue
         better_ate = np.mean(values[:, 1] < initial[:, 1])
         print(
-            f"{name:>10} {values[:, 0].mean():>10.4g} {np.median(values[:, 0]):>10.4g} "
-            f"{values[:, 1].mean():>11.4f} {np.median(values[:, 1]):>11.4f} "
-            f"{better_f:>10.0%} {better_ate:>12.0%}"
+            f"{f_columns}{values[:, 1].mean():>11.4f} {np.median(values[:, 1]):>11.4f} "
+            f"{better_f} {better_ate:>12.0%}"
         )
 
 
