@@ -899,6 +899,8 @@ def solve_rbcd(
     """
     if rank < 2:
         raise ValueRangeError("rank", rank, "an integer ≥ 2")
+    if options.rounding not in ROUNDINGS:  # before the rounds, not after them
+        raise ValueRangeError("rounding", options.rounding, " or ".join(ROUNDINGS))
     start = time.perf_counter()
     x0 = lift(initial_poses(graph, init), random_stiefel(rank, seed))
     initialised = time.perf_counter()

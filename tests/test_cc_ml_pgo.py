@@ -108,6 +108,17 @@ def test_svd_rounding_keeps_the_dominant_plane_of_an_unconverged_iterate(small_g
         rbcd.rounding_basis(lifted, 0, "nearest")
 
 
+@pytest.mark.parametrize("method", [cc_pgo, ml_pgo])
+def test_an_unknown_rounding_is_rejected_before_any_round(small_graph, method, monkeypatch):
+    def no_rounds(*_args, **_kwargs):
+        raise AssertionError("the rounds ran before the option was checked")
+
+    monkeypatch.setattr(rbcd, "run_rbcd", no_rounds)
+    problem = DistributedProblem(small_graph.replace(robots=np.repeat(np.arange(3), 10)))
+    with pytest.raises(ValueRangeError, match="rounding"):
+        method.solve(problem, Budget(iterations=5), rounding="nearest")
+
+
 def test_colour_classes_are_independent_sets_covering_every_robot(small_graph):
     robots = np.repeat(np.arange(6), 5)
     classes = rbcd.colour_robots(small_graph, robots)
