@@ -2,15 +2,17 @@
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/eval_prop.py
     (options: --problems 100 --robots 7 --checkpoint PATH --datasets intel,mit,...
-     --skip-synthetic --skip-datasets)
+     --skip-synthetic --skip-datasets --align)
 
 Part 1 — `--problems` synthetic V2 problems with n robots (60 poses each), seeds
 EVAL_SEED_BASE + k, checked disjoint from every problem seed the training streams can draw
 (SeedSequence([train_seed, element, episode]) for the committed runs' elements and far more
 episodes than they ran). For each problem, from its odometry start:
     initial      the start itself;
-    consensus    ADMM consensus (popbench.consensus, same settings) on the untouched copies:
-                 what prop-v1 gets without its actor;
+    consensus    prop-v1's consensus (ADMM, popbench.consensus, the paper's; with `--align`
+                 every row, prop-v1 included, first aligns the robots' frames,
+                 popbench.alignment) on the untouched copies: what prop-v1 gets without its
+                 actor;
     random       a random policy (uniform unprocessed edge, uniform δ in [−Δmax, Δmax]) for the
                  same episode, then the same consensus;
     prop-v1      the trained actor's episode, then the same consensus;
@@ -43,6 +45,7 @@ import torch
 from agents.checkpoint import load_actor
 from agents.methods import DEFAULT_CHECKPOINT, solve_prop_v1, solve_prop_v2
 from popbench import objective
+from popbench.alignment import align_frames
 from popbench.consensus import admm_consensus
 from popbench.methods import Budget
 from popbench.synthetic import make_problem
@@ -106,7 +109,14 @@ def local_optima(problem) -> list[np.ndarray]:
     return optima
 
 
-def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
+def consensus(problem, copies: list[np.ndarray], align: bool) -> np.ndarray:
+    """prop-v1's consensus of local ``copies``: frame alignment (if ``align``), then ADMM."""
+    if align:
+        copies = align_frames(problem, copies).local_poses
+    return admm_consensus(problem, copies).poses
+
+
+def synthetic_table(checkpoint: Path, problems: int, robots: int, align: bool) -> None:
     actor, _ = load_actor(checkpoint)
     delta_max = actor.delta_max.numpy().astype(np.float64)
     excluded = training_problem_seeds()
@@ -132,18 +142,17 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
             rows[name].append((f, aligned_position_rmse(poses, truth)))
 
         record("initial", graph.poses)
-        record("consensus", admm_consensus(problem, problem.split()).poses)
-        record(
-            "random", admm_consensus(problem, random_policy_copies(problem, delta_max, rng)).poses
-        )
-        prop_v1 = solve_prop_v1(problem, Budget(), checkpoint=checkpoint)
+        record("consensus", consensus(problem, problem.split(), align))
+        record("random", consensus(problem, random_policy_copies(problem, delta_max, rng), align))
+        prop_v1 = solve_prop_v1(problem, Budget(), checkpoint=checkpoint, align_frames=align)
         record("prop-v1", prop_v1.poses)
         rows["actor only"].append((prop_v1.extras["F_actor"], np.nan))
-        record("local-opt", admm_consensus(problem, local_optima(problem)).poses)
-        record("truth", admm_consensus(problem, problem.split(truth)).poses)
+        record("local-opt", consensus(problem, local_optima(problem), align))
+        record("truth", consensus(problem, problem.split(truth), align))
     print(
         f"\n{problems} held-out synthetic V2 problems, n = {robots}, 60 poses/robot "
-        f"(seeds {seeds[0]}..{seeds[-1]}; {time.perf_counter() - started:.0f} s)"
+        f"(seeds {seeds[0]}..{seeds[-1]}; consensus {'with' if align else 'without'} frame "
+        f"alignment; {time.perf_counter() - started:.0f} s)"
     )
     print(
         f"{'estimate':>10} {'F mean':>10} {'F median':>10} {'ATE mean m':>11} "
@@ -164,7 +173,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int) -> None:
         )
 
 
-def dataset_table(checkpoint: Path, names: list[str], robots: int) -> None:
+def dataset_table(checkpoint: Path, names: list[str], robots: int, align: bool) -> None:
     from baselines import mm_pgo
     from envs import dataset_problem
     from popbench.solvers.chordal import chordal_initialisation
@@ -179,7 +188,7 @@ def dataset_table(checkpoint: Path, names: list[str], robots: int) -> None:
     for name in names:
         problem = dataset_problem(name, robots)
         start = objective.objective(problem.graph, problem.graph.poses)
-        v2 = solve_prop_v2(problem, Budget(), checkpoint=checkpoint)  # runs prop-v1 first
+        v2 = solve_prop_v2(problem, Budget(), checkpoint=checkpoint, align_frames=align)
         lm = solve_graph(problem.graph, problem.graph.poses, iterations=75)
         optimum = solve_graph(problem.graph, chordal_initialisation(problem.graph), 300).F
         mm = mm_pgo.solve(problem, Budget(1000), init="given")
@@ -203,13 +212,16 @@ def main() -> None:
     parser.add_argument("--skip-synthetic", action="store_true")
     parser.add_argument("--skip-datasets", action="store_true")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--align", action="store_true", help="align the robots' frames before every consensus"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"checkpoint: {args.checkpoint}")
     if not args.skip_synthetic:
-        synthetic_table(args.checkpoint, args.problems, args.robots)
+        synthetic_table(args.checkpoint, args.problems, args.robots, args.align)
     if not args.skip_datasets:
-        dataset_table(args.checkpoint, args.datasets.split(","), args.robots)
+        dataset_table(args.checkpoint, args.datasets.split(","), args.robots, args.align)
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from popbench import objective
 from popbench.cli import main, train_config
 from popbench.errors import ValueRangeError
 from popbench.io import write_g2o
-from popbench.methods import Budget, get_method
+from popbench.methods import Budget, get_method, method_options
 from popbench.synthetic import make_problem
 
 TINY = ModelConfig(
@@ -157,6 +157,28 @@ def test_prop_v2_reaches_the_gtsam_optimum(problem, tiny_checkpoint: Path, tmp_p
     # order in the residual, so F at its optimum is within round-off of F*, from above.
     reference = objective.objective(problem.graph, gtsam_optimum(problem.graph, tmp_path))
     assert v2.F == pytest.approx(reference, rel=1e-4)
+
+
+def test_prop_v1_aligns_the_frames_before_the_consensus(problem, tiny_checkpoint: Path) -> None:
+    """With `align_frames=True` the consensus starts from the aligned maps (lower F than the
+    episode's own); by default the ADMM gets the episode's copies as they are (the paper)."""
+    plain = solve_prop_v1(
+        problem, Budget(), init="odometry", checkpoint=tiny_checkpoint, consensus_iterations=3
+    )
+    aligned = solve_prop_v1(
+        problem,
+        Budget(),
+        init="odometry",
+        checkpoint=tiny_checkpoint,
+        consensus_iterations=3,
+        align_frames=True,
+    )
+    assert aligned.extras["F_actor"] == plain.extras["F_actor"]  # the same episode
+    assert aligned.extras["F_aligned"] < aligned.extras["F_actor"]
+    assert plain.extras["F_aligned"] == plain.extras["F_actor"]
+    assert aligned.F != plain.F
+    assert aligned.messages == plain.messages + problem.separators.size + problem.num_robots - 1
+    assert "align_frames" in method_options("prop-v2")
 
 
 def test_registry_and_init_options(problem, tiny_checkpoint: Path) -> None:
