@@ -16,6 +16,9 @@ episodes than they ran). For each problem, from its odometry start:
     random       a random policy (uniform unprocessed edge, uniform δ in [−Δmax, Δmax]) for the
                  same episode, then the same consensus;
     prop-v1      the trained actor's episode, then the same consensus;
+    greedy       a hand-made policy for the same episode, then the same consensus: every robot
+                 takes its unprocessed edges in slot order and corrects each by half its
+                 residual (δ = −½ r, clipped to Δmax): what a simple local policy gets;
     actor only   F of prop-v1's copies after the episode, before the consensus (each vertex from
                  its owner's copy; no ATE): against `initial`, what the policy itself did;
 and two bounds on what *any* local policy could add before the same consensus:
@@ -95,6 +98,26 @@ def random_policy_copies(problem, delta_max: np.ndarray, rng: np.random.Generato
     return core.local_poses(0)
 
 
+def greedy_policy_copies(problem, delta_max: np.ndarray, fraction: float = 0.5) -> list:
+    """Local copies after one episode of the hand-made policy: first unprocessed edge,
+    δ = −fraction · (its residual) (the environment clips δ to Δmax)."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    n = problem.num_robots
+    core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=delta_max.tolist(), reward="F")
+    core.load([problem], [0])
+    robots = torch.arange(n)
+    for _ in range(int(core.tensors["num_edges"].max())):
+        residuals = core.tensors["residuals"][0]  # (n, E, 3), in the frame of each edge's tail
+        edge = core.action_mask()[0].to(torch.int8).argmax(-1)  # E (no-op) once all are done
+        acting = (edge < residuals.shape[1]).unsqueeze(-1)
+        r = residuals[robots, edge.clamp(max=residuals.shape[1] - 1)]
+        delta = torch.where(acting, -fraction * r, torch.zeros_like(r))
+        core.step(edge.view(1, n), delta.view(1, n, 3))
+    return core.local_poses(0)
+
+
 def local_optima(problem) -> list[np.ndarray]:
     """Every robot's copies moved to its local graph's own optimum (`lm` from the copies,
     local vertex 0 fixed): the most a policy that lowers local F could reach."""
@@ -128,6 +151,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int, align: bool) -
         "consensus": [],
         "random": [],
         "prop-v1": [],
+        "greedy": [],
         "actor only": [],
         "local-opt": [],
         "truth": [],
@@ -147,6 +171,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int, align: bool) -
         prop_v1 = solve_prop_v1(problem, Budget(), checkpoint=checkpoint, align_frames=align)
         record("prop-v1", prop_v1.poses)
         rows["actor only"].append((prop_v1.extras["F_actor"], np.nan))
+        record("greedy", consensus(problem, greedy_policy_copies(problem, delta_max), align))
         record("local-opt", consensus(problem, local_optima(problem), align))
         record("truth", consensus(problem, problem.split(truth), align))
     print(
