@@ -89,28 +89,22 @@ def inter_robot_graph(problem: DistributedProblem) -> PoseGraph:
 
 
 def frame_jacobians(
-    problem: DistributedProblem, poses: np.ndarray, frames: np.ndarray
+    inter: PoseGraph, poses: np.ndarray, frames: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whitened inter-robot residuals ``(m, 3)`` at ``T ∘ x`` and their Jacobians with respect to
-    the tail's and the head's robot frame (each ``(m, 3, 3)``); ``poses``: the owners'
-    ``(N, 3)``."""
-    graph = problem.graph
-    inter = inter_robot_graph(problem)
-    y = moved(frames, poses, graph.robots)
+    """Whitened residuals ``(m, 3)`` of the inter-robot graph ``inter``
+    (:func:`inter_robot_graph`) at ``T ∘ x`` and their Jacobians with respect to the tail's and
+    the head's robot frame (each ``(m, 3, 3)``); ``poses``: the owners' ``(N, 3)``."""
+    y = moved(frames, poses, inter.robots)
     lin = linearise(inter, y)
 
     def chain(vertices: np.ndarray) -> np.ndarray:  # ∂(T ∘ x_v)/∂T at each vertex
-        origin = frames[graph.robots[vertices], :2]
+        origin = frames[inter.robots[vertices], :2]
         d = np.broadcast_to(np.eye(3), (vertices.size, 3, 3)).copy()
         d[:, 0, 2] = -(y[vertices, 1] - origin[:, 1])
         d[:, 1, 2] = y[vertices, 0] - origin[:, 0]
         return d
 
     return lin.errors, lin.jac_tail @ chain(inter.tails), lin.jac_head @ chain(inter.heads)
-
-
-def _inter_cost(problem: DistributedProblem, poses: np.ndarray, frames: np.ndarray) -> float:
-    return objective(inter_robot_graph(problem), moved(frames, poses, problem.graph.robots))
 
 
 def align_frames(
@@ -131,16 +125,16 @@ def align_frames(
     """
     n = problem.num_robots
     poses = problem.assemble(local_poses)
-    robots = problem.graph.robots
+    inter = inter_robot_graph(problem)
+    robots = inter.robots
     frames = np.zeros((n, 3))
-    edges = problem.inter_robot_edges
-    cost = before = _inter_cost(problem, poses, frames)
+    cost = before = objective(inter, moved(frames, poses, robots))
     gauge = int(robots[0])
     free = np.setdiff1d(np.arange(3 * n), 3 * gauge + np.arange(3))
-    tail_robot, head_robot = robots[problem.graph.tails[edges]], robots[problem.graph.heads[edges]]
+    tail_robot, head_robot = robots[inter.tails], robots[inter.heads]
     damping, tried = INITIAL_DAMPING, 0
-    while edges.size and tried < iterations and damping < MAX_DAMPING:
-        errors, jac_tail, jac_head = frame_jacobians(problem, poses, frames)
+    while inter.num_edges and tried < iterations and damping < MAX_DAMPING:
+        errors, jac_tail, jac_head = frame_jacobians(inter, poses, frames)
         hessian = np.zeros((n, 3, n, 3))
         gradient = np.zeros((n, 3))
         for rows, jac_rows in ((tail_robot, jac_tail), (head_robot, jac_head)):
@@ -157,7 +151,7 @@ def align_frames(
             trial = frames.copy()
             trial.reshape(-1)[free] += np.linalg.solve(system, -gradient)
             trial[:, 2] = se2.wrap(trial[:, 2])
-            trial_cost = _inter_cost(problem, poses, trial)
+            trial_cost = objective(inter, moved(trial, poses, robots))
             if trial_cost <= cost:
                 converged = cost - trial_cost <= relative_tolerance * cost
                 frames, cost = trial, trial_cost
@@ -170,5 +164,5 @@ def align_frames(
         se2.compose(np.broadcast_to(frames[r], estimate.shape), estimate)
         for r, estimate in enumerate(local_poses)
     ]
-    messages = problem.separators.size + n - 1 if edges.size else 0
+    messages = problem.separators.size + n - 1 if inter.num_edges else 0
     return FrameAlignment(aligned, frames, before, cost, tried, messages)

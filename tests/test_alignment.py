@@ -77,8 +77,8 @@ def test_lowers_only_the_inter_robot_edges(problem) -> None:
 
 def test_frame_jacobians_match_central_differences(problem, optimum) -> None:
     frames = random_frames(problem, seed=3)
-    errors, jac_tail, jac_head = frame_jacobians(problem, optimum, frames)
     inter = inter_robot_graph(problem)
+    errors, jac_tail, jac_head = frame_jacobians(inter, optimum, frames)
     robots = problem.graph.robots
     tail_robot, head_robot = robots[inter.tails], robots[inter.heads]
     step = 1e-6
