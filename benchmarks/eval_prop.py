@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -81,8 +82,9 @@ def aligned_position_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt((residual**2).sum(1).mean()))
 
 
-def random_policy_copies(problem, delta_max: np.ndarray, rng: np.random.Generator) -> list:
-    """Local copies after one episode of the uniform random policy."""
+def episode_copies(problem, delta_max: np.ndarray, policy: Callable) -> list:
+    """Local copies after one episode of the environment (envs.core.PGOCore, measurement
+    reward) driven by ``policy(core) -> (edge [n], delta [n, 3])``."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
@@ -90,32 +92,34 @@ def random_policy_copies(problem, delta_max: np.ndarray, rng: np.random.Generato
     core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=delta_max.tolist(), reward="F")
     core.load([problem], [0])
     for _ in range(int(core.tensors["num_edges"].max())):
+        edge, delta = policy(core)
+        core.step(torch.as_tensor(edge).view(1, n), torch.as_tensor(delta).view(1, n, 3))
+    return core.local_poses(0)
+
+
+def random_policy_copies(problem, delta_max: np.ndarray, rng: np.random.Generator) -> list:
+    """Local copies after one episode of the uniform random policy."""
+
+    def policy(core):
         mask = core.action_mask()[0].numpy()
         scores = np.where(mask, rng.random(mask.shape), -1.0)
-        edge = torch.as_tensor(scores.argmax(-1)).view(1, n)
-        delta = torch.as_tensor(rng.uniform(-delta_max, delta_max, (1, n, 3)))
-        core.step(edge, delta)
-    return core.local_poses(0)
+        return scores.argmax(-1), rng.uniform(-delta_max, delta_max, (1, mask.shape[0], 3))
+
+    return episode_copies(problem, delta_max, policy)
 
 
 def greedy_policy_copies(problem, delta_max: np.ndarray, fraction: float = 0.5) -> list:
     """Local copies after one episode of the hand-made policy: first unprocessed edge,
     δ = −fraction · (its residual) (the environment clips δ to Δmax)."""
-    from envs.core import PGOCore
-    from envs.observation import Dimensions
 
-    n = problem.num_robots
-    core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=delta_max.tolist(), reward="F")
-    core.load([problem], [0])
-    robots = torch.arange(n)
-    for _ in range(int(core.tensors["num_edges"].max())):
+    def policy(core):
         residuals = core.tensors["residuals"][0]  # (n, E, 3), in the frame of each edge's tail
         edge = core.action_mask()[0].to(torch.int8).argmax(-1)  # E (no-op) once all are done
         acting = (edge < residuals.shape[1]).unsqueeze(-1)
-        r = residuals[robots, edge.clamp(max=residuals.shape[1] - 1)]
-        delta = torch.where(acting, -fraction * r, torch.zeros_like(r))
-        core.step(edge.view(1, n), delta.view(1, n, 3))
-    return core.local_poses(0)
+        r = residuals[torch.arange(edge.numel()), edge.clamp(max=residuals.shape[1] - 1)]
+        return edge, torch.where(acting, -fraction * r, torch.zeros_like(r))
+
+    return episode_copies(problem, delta_max, policy)
 
 
 def local_optima(problem) -> list[np.ndarray]:
