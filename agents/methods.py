@@ -11,12 +11,9 @@ prop-v1
     2. Optional (`align_frames=True`; off by default, the paper has no such step): frame
        alignment (popbench.alignment) — every robot's local estimate is moved rigidly by one
        SE(2) frame, the frames minimising the assembled F (only the inter-robot edges change),
-       so the consensus starts from maps placed against each other. Measured (the module
-       docstring of popbench.alignment and agents/checkpoints/README.md): on 100 held-out V2
-       problems at n = 7 it lowers the median F after the consensus ~5× and the ATE from ~5.4
-       to ~3.4 m for every local policy; on the Table I datasets from odometry, where the ADMM
-       does not converge either way, prop-v1's F moved by −4 % … +77 % (worse on 7 of 8), so
-       the default stays the paper's plain ADMM.
+       so the consensus starts from maps placed against each other. Why it is off by default
+       (better on held-out synthetic problems, worse on 7 of 8 Table I datasets): the module
+       docstring of popbench.alignment, with the numbers in agents/checkpoints/README.md.
     3. Information-weighted ADMM consensus over the separators (popbench.consensus) reconciles
        the copies; the global estimate is the consensus output.
 prop-v2
@@ -253,7 +250,7 @@ def solve_prop_v1(
     with torch.no_grad():
         episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done)
     graph = problem.graph
-    actor_poses = problem.assemble(episode.local_poses)
+    f_actor = objective.objective(graph, problem.assemble(episode.local_poses))
     tic = time.perf_counter()
     local_poses, alignment_messages = episode.local_poses, 0
     if align_frames:
@@ -279,8 +276,12 @@ def solve_prop_v1(
         messages=int(consensus.messages) + alignment_messages,
         extras={
             "F_init": float(episode.history[0]),
-            "F_actor": objective.objective(graph, actor_poses),
-            "F_aligned": objective.objective(graph, problem.assemble(local_poses)),
+            "F_actor": f_actor,
+            "F_aligned": (
+                objective.objective(graph, problem.assemble(local_poses))
+                if align_frames
+                else f_actor
+            ),
             "consensus_iterations": int(consensus.iterations),
             "consensus_converged": bool(consensus.converged),
             "step_ms_mean": 1e3 * float(episode.step_s.mean()) if episode.step_s.size else 0.0,
