@@ -67,6 +67,16 @@ class PoseGraph:
         """A copy with some fields replaced (``graph.replace(poses=new_poses)``)."""
         return dataclasses.replace(self, **changes)
 
+    def edge_subset(self, keep: np.ndarray) -> PoseGraph:
+        """The same vertices with only the edges where ``keep`` (``(M,)`` bool) is True."""
+        return self.replace(
+            tails=self.tails[keep],
+            heads=self.heads[keep],
+            measurements=self.measurements[keep],
+            information=self.information[keep],
+            kinds=self.kinds[keep],
+        )
+
     def odometry_initial(self) -> np.ndarray:
         """The odometry-composition estimate of this graph's measurements (see
         :func:`odometry_composition`)."""

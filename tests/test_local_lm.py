@@ -1,0 +1,70 @@
+"""local-lm (every robot's local optimum, then the consensus) and popbench.reconcile."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from popbench import objective
+from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
+from popbench.reconcile import CONSENSUS_MODES, reconcile
+from popbench.solvers import lm, local_lm
+from popbench.synthetic import make_problem
+
+
+@pytest.fixture(scope="module")
+def problem() -> DistributedProblem:
+    return make_problem(robots=3, poses_per_robot=30, noise="V2", seed=5)
+
+
+def test_local_optima_are_stationary_and_below_the_start(problem):
+    optima, seconds = local_lm.local_optima(problem)
+    assert seconds.shape == (3,) and np.all(seconds > 0)
+    for local, poses in zip(problem.local_graphs, optima, strict=True):
+        graph = local.graph
+        assert np.array_equal(poses[0], graph.poses[0])  # the local gauge stays put
+        assert objective.objective(graph, poses) < objective.objective(graph, graph.poses)
+        # a much tighter solve from there lowers F by no more than round-off of the stopping rule
+        tighter = lm.solve_graph(
+            graph, poses, 200, relative_tolerance=1e-15, gradient_tolerance=1e-12
+        ).poses
+        f_ours, f_tight = objective.objective(graph, poses), objective.objective(graph, tighter)
+        assert f_tight <= f_ours <= f_tight * (1 + 1e-8)
+
+
+def test_excluded_edges_are_left_out(problem):
+    excluded = np.zeros(problem.graph.num_edges, dtype=bool)
+    loops = np.flatnonzero(problem.graph.kinds != 0)
+    excluded[loops] = True
+    optima, _ = local_lm.local_optima(problem, excluded=excluded)
+    # with only odometry left (a tree on every robot's owned chain), the optimum is the
+    # odometry composition: every remaining residual vanishes
+    for local, poses in zip(problem.local_graphs, optima, strict=True):
+        kept = local.graph.edge_subset(~excluded[local.edge_ids])
+        assert objective.objective(kept, poses) < 1e-12
+
+
+def test_one_robot_is_the_centralised_optimum(problem):
+    single = DistributedProblem.single_robot(problem.graph)
+    ours = local_lm.solve(single)
+    reference = lm.solve_graph(single.graph, single.graph.poses, local_lm.LOCAL_ITERATIONS)
+    assert ours.F == pytest.approx(objective.objective(single.graph, reference.poses), rel=1e-9)
+    assert ours.history[0] > ours.F
+
+
+@pytest.mark.parametrize("mode", CONSENSUS_MODES)
+def test_local_lm_lowers_F_through_either_consensus(problem, mode):
+    result = local_lm.solve(problem, consensus=mode)
+    f_init = objective.objective(problem.graph, problem.graph.poses)
+    assert result.F < f_init
+    if mode == "admm":
+        assert result.extras["F_aligned"] == result.extras["F_local"]
+    else:
+        assert result.extras["F_aligned"] <= result.extras["F_local"] + 1e-9
+    assert result.messages > 0 and result.parallel_s > 0
+
+
+def test_unknown_consensus_is_one_line_error(problem):
+    with pytest.raises(ValueRangeError, match="admm"):
+        reconcile(problem, problem.split(), "gauss")
