@@ -52,6 +52,7 @@ from popbench import objective
 from popbench.alignment import align_frames
 from popbench.consensus import admm_consensus
 from popbench.methods import Budget
+from popbench.metrics import ate
 from popbench.synthetic import make_problem
 
 EVAL_SEED_BASE = 3_000_000
@@ -69,17 +70,6 @@ def training_problem_seeds() -> set[int]:
                 key = [seed, element, episode]
                 seeds.add(int(np.random.SeedSequence(key).generate_state(1)[0]))
     return seeds
-
-
-def aligned_position_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """ATE [m]: RMS position error after the least-squares rigid alignment (Umeyama, no scale)."""
-    p, q = estimate[:, :2], truth[:, :2]
-    p0, q0 = p - p.mean(0), q - q.mean(0)
-    u, _, vt = np.linalg.svd(p0.T @ q0)
-    d = np.sign(np.linalg.det(u @ vt))
-    rotation = (u @ np.diag([1.0, d]) @ vt).T
-    residual = (rotation @ p0.T).T - q0
-    return float(np.sqrt((residual**2).sum(1).mean()))
 
 
 def episode_copies(problem, delta_max: np.ndarray, policy: Callable) -> list:
@@ -167,7 +157,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int, align: bool) -
 
         def record(name: str, poses: np.ndarray, graph=graph, truth=truth) -> None:
             f = objective.objective(graph, poses)
-            rows[name].append((f, aligned_position_rmse(poses, truth)))
+            rows[name].append((f, ate(poses, truth)))
 
         record("initial", graph.poses)
         record("consensus", consensus(problem, problem.split(), align))

@@ -1,0 +1,54 @@
+"""Accuracy measures beside the objective: the trajectory error against ground truth and
+bootstrap confidence intervals of a statistic over problems."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+
+def ate(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """Absolute trajectory error [m]: the RMS position error after the least-squares rigid
+    SE(2) alignment of ``estimate`` to ``truth`` (Umeyama without scale).
+
+    Args:
+        estimate, truth: ``(N, 3)`` poses ``(x [m], y [m], θ [rad])``; only positions are used.
+    """
+    p, q = estimate[:, :2], truth[:, :2]
+    p0, q0 = p - p.mean(0), q - q.mean(0)
+    u, _, vt = np.linalg.svd(p0.T @ q0)
+    reflection = np.sign(np.linalg.det(u @ vt))
+    rotation = (u @ np.diag([1.0, reflection]) @ vt).T  # argmin_R Σ ‖R p0 − q0‖², det R = 1
+    residual = p0 @ rotation.T - q0
+    return float(np.sqrt((residual**2).sum(1).mean()))
+
+
+def bootstrap_ci(
+    values: np.ndarray,
+    statistic: Callable[[np.ndarray], np.ndarray] = np.median,
+    level: float = 0.95,
+    resamples: int = 2000,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of ``statistic`` over ``values``.
+
+    Args:
+        values: ``(K,)`` one value per problem (NaNs are dropped).
+        statistic: reduces an array along ``axis=-1`` (``np.median``, ``np.mean``).
+        level: the interval's coverage in (0, 1).
+        resamples: bootstrap resamples; seed: their generator's seed (reproducible tables).
+
+    Returns:
+        ``(low, high)``; ``(nan, nan)`` for fewer than two values.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    values = values[~np.isnan(values)]
+    if values.size < 2:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    samples = values[rng.integers(0, values.size, (resamples, values.size))]
+    estimates = statistic(samples, axis=-1)
+    tail = 100 * (1 - level) / 2
+    low, high = np.percentile(estimates, [tail, 100 - tail])
+    return float(low), float(high)
