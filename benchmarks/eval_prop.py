@@ -53,6 +53,7 @@ from popbench.alignment import align_frames
 from popbench.consensus import admm_consensus
 from popbench.methods import Budget
 from popbench.metrics import ate
+from popbench.solvers.local_lm import local_optima
 from popbench.synthetic import make_problem
 
 EVAL_SEED_BASE = 3_000_000
@@ -112,20 +113,6 @@ def greedy_policy_copies(problem, delta_max: np.ndarray, fraction: float = 0.5) 
     return episode_copies(problem, delta_max, policy)
 
 
-def local_optima(problem) -> list[np.ndarray]:
-    """Every robot's copies moved to its local graph's own optimum (`lm` from the copies,
-    local vertex 0 fixed): the most a policy that lowers local F could reach."""
-    from popbench.solvers.lm import solve_graph
-
-    copies = problem.split()
-    optima = []
-    for robot, start in enumerate(copies):
-        local = problem.local_graph(robot)
-        assert np.array_equal(local.global_ids, problem.local_vertices(robot))
-        optima.append(solve_graph(local.graph, start, iterations=100).poses)
-    return optima
-
-
 def consensus(problem, copies: list[np.ndarray], align: bool) -> np.ndarray:
     """prop-v1's consensus of local ``copies``: frame alignment (if ``align``), then ADMM."""
     if align:
@@ -166,7 +153,7 @@ def synthetic_table(checkpoint: Path, problems: int, robots: int, align: bool) -
         record("prop-v1", prop_v1.poses)
         rows["actor only"].append((prop_v1.extras["F_actor"], np.nan))
         record("greedy", consensus(problem, greedy_policy_copies(problem, delta_max), align))
-        record("local-opt", consensus(problem, local_optima(problem), align))
+        record("local-opt", consensus(problem, local_optima(problem)[0], align))
         record("truth", consensus(problem, problem.split(truth), align))
     print(
         f"\n{problems} held-out synthetic V2 problems, n = {robots}, 60 poses/robot "
