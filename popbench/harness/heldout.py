@@ -1,0 +1,238 @@
+"""``popbench run heldout``: the learned solver on held-out synthetic problems, row by row.
+
+Every row is an estimate of the same problem brought through the same consensus
+(:mod:`popbench.reconcile`), so the rows differ only in what was done to the robots' local
+graphs before it: nothing (``no-op``), a random, greedy or Gauss–Newton policy, the expert, the
+learned actors, every local graph at its own optimum (``local-lm``), or the ground truth.
+``initial`` is the start itself, without a consensus.
+
+Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
+(``envs.core.ProblemSampler``) draw 32-bit seeds, all below the base, so the two never meet.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from popbench.harness.cache import CellCache, code_fingerprint
+from popbench.harness.manifest import write_manifest
+from popbench.harness.runner import Spec, run_cells
+from popbench.metrics import bootstrap_ci
+from popbench.reconcile import DEFAULT_CONSENSUS
+
+HELDOUT_SEED_BASE = 2**32
+ROWS = (
+    "initial",
+    "no-op",
+    "random",
+    "greedy",
+    "gn-sweep",
+    "expert",
+    "imitation",
+    "prop-v1",
+    "local-lm",
+    "ground-truth",
+)
+LEARNED_ROWS = ("imitation", "prop-v1")
+# The function that computes one row of one problem: (spec) -> {"F", "ATE", "F_local"}.
+ROW_FUNCTION = "agents.heldout:evaluate_row"
+CHECKPOINTS_FUNCTION = "agents.heldout:row_checkpoints"
+
+
+@dataclasses.dataclass(frozen=True)
+class HeldoutConfig:
+    """What ``popbench run heldout`` computes.
+
+    Attributes:
+        noise: synthetic noise levels (``V1``/``V2``/``V3``).
+        robots: team sizes.
+        problems: held-out problems per (noise, robots).
+        poses_per_robot: synthetic trajectory length.
+        rows: the rows to compute (a subset of :data:`ROWS`, in that order).
+        consensus: the consensus every row goes through (one of
+            :data:`popbench.reconcile.CONSENSUS_MODES`).
+        checkpoint: the actor of the ``prop-v1`` row (None: the committed default).
+        out: output folder.
+    """
+
+    noise: tuple[str, ...] = ("V2",)
+    robots: tuple[int, ...] = (7,)
+    problems: int = 100
+    poses_per_robot: int = 60
+    rows: tuple[str, ...] = ROWS
+    consensus: str = DEFAULT_CONSENSUS
+    checkpoint: Path | None = None
+    out: Path = Path("results/heldout")
+
+
+def _load(target: str) -> Any:
+    """The object a ``"module:name"`` string names, imported on first use."""
+    module, name = target.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def cell_specs(config: HeldoutConfig) -> list[Spec]:
+    """One specification per (noise, robots, problem, row), with the code and, for the learned
+    rows, the checkpoint's sha256 it is computed from. A learned row whose checkpoint does not
+    exist is left out of the default rows and refused when asked for by name."""
+    checkpoints = _load(CHECKPOINTS_FUNCTION)(config.checkpoint)
+    code = code_fingerprint()
+    specs = []
+    for noise in config.noise:
+        for robots in config.robots:
+            for k in range(config.problems):
+                for row in config.rows:
+                    spec: dict[str, Any] = {
+                        "experiment": "heldout",
+                        "code": code,
+                        "noise": noise,
+                        "robots": robots,
+                        "poses_per_robot": config.poses_per_robot,
+                        "problem_seed": HELDOUT_SEED_BASE + k,
+                        "row": row,
+                        "consensus": config.consensus,
+                    }
+                    if row in LEARNED_ROWS:
+                        if checkpoints[row] is None:
+                            continue
+                        spec["checkpoint"], spec["checkpoint_sha256"] = checkpoints[row]
+                    specs.append(spec)
+    return specs
+
+
+def compute_cell(spec: Spec) -> dict[str, Any]:
+    """One row of one held-out problem (``agents.heldout.evaluate_row``) and its wall time."""
+    started = time.perf_counter()
+    measured = _load(ROW_FUNCTION)(spec)
+    return {
+        "noise": spec["noise"],
+        "robots": spec["robots"],
+        "problem_seed": spec["problem_seed"],
+        "row": spec["row"],
+        **measured,
+        "wall_s": time.perf_counter() - started,
+    }
+
+
+def summary(frame: pd.DataFrame) -> pd.DataFrame:
+    """Per (noise, robots, row): mean and median F and ATE with bootstrap 95 % CIs, and the
+    ratio of the row's median F to the no-op's; ``closed_F`` / ``closed_ATE`` give the share of
+    the no-op → local-lm gap the row closes in median F and in mean ATE."""
+    records = []
+    for (noise, robots), group in frame.groupby(["noise", "robots"], sort=False):
+        medians = group.groupby("row")["F"].median()
+        ate_means = group.groupby("row")["ATE"].mean()
+        for row in [r for r in ROWS if r in set(group["row"])]:
+            values = group[group["row"] == row]
+            f, ate = values["F"].to_numpy(), values["ATE"].to_numpy()
+            record = {
+                "noise": noise,
+                "robots": robots,
+                "row": row,
+                "problems": len(values),
+                "F_mean": float(f.mean()),
+                "F_mean_ci": bootstrap_ci(f, np.mean),
+                "F_median": float(np.median(f)),
+                "F_median_ci": bootstrap_ci(f, np.median),
+                "ATE_mean": float(ate.mean()),
+                "ATE_mean_ci": bootstrap_ci(ate, np.mean),
+                "ATE_median": float(np.median(ate)),
+                "median_ratio_to_noop": _ratio(medians, row, "no-op"),
+                "closed_F": _closed(medians, row),
+                "closed_ATE": _closed(ate_means, row),
+            }
+            records.append(record)
+    return pd.DataFrame(records)
+
+
+def _ratio(values: pd.Series, row: str, reference: str) -> float:
+    return float(values[row] / values[reference]) if reference in values else float("nan")
+
+
+def _closed(values: pd.Series, row: str) -> float:
+    """(v_no-op − v_row) / (v_no-op − v_local-lm), NaN without both references."""
+    if "no-op" not in values or "local-lm" not in values:
+        return float("nan")
+    return float((values["no-op"] - values[row]) / (values["no-op"] - values["local-lm"]))
+
+
+def markdown(table: pd.DataFrame) -> str:
+    """The summary as a markdown table per (noise, robots)."""
+    lines = []
+    for (noise, robots), group in table.groupby(["noise", "robots"], sort=False):
+        count = int(group["problems"].max())
+        lines += [
+            f"### {noise}, n = {robots} ({count} held-out problems, 95 % bootstrap CIs)",
+            "",
+            "| row | F mean | F median [95 % CI] | ATE mean [m] [95 % CI] | median F / no-op "
+            "| gap closed (F, ATE) |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for record in group.itertuples():
+            lines.append(
+                f"| {record.row} | {record.F_mean:.4g} | {record.F_median:.4g} "
+                f"[{record.F_median_ci[0]:.4g}, {record.F_median_ci[1]:.4g}] "
+                f"| {record.ATE_mean:.3f} [{record.ATE_mean_ci[0]:.3f}, "
+                f"{record.ATE_mean_ci[1]:.3f}] | {record.median_ratio_to_noop:.3f} "
+                f"| {record.closed_F:.2f}, {record.closed_ATE:.2f} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
+    """F per row (box plot over problems, log scale), one panel per (noise, robots)."""
+    from popbench.harness.plotting import pyplot, save_figure
+
+    plt = pyplot()
+    groups = list(frame.groupby(["noise", "robots"], sort=False))
+    fig, axes = plt.subplots(1, len(groups), figsize=(6.5 * len(groups), 4.0), squeeze=False)
+    for axis, ((noise, robots), group) in zip(axes[0], groups, strict=True):
+        rows = [r for r in ROWS if r in set(group["row"])]
+        axis.boxplot([group.loc[group["row"] == r, "F"] for r in rows], showfliers=False)
+        axis.set_xticks(range(1, len(rows) + 1), rows, rotation=40, ha="right")
+        axis.set_yscale("log")
+        axis.set_ylabel("F after the consensus (eq. 1)")
+        axis.set_title(f"held-out {noise}, n = {robots}")
+    fig.tight_layout()
+    return save_figure(fig, stem)
+
+
+def summary_json(table: pd.DataFrame) -> str:
+    """The summary as one JSON object ``{"rows": [...]}`` (CIs as ``[lo, hi]``)."""
+    records = json.loads(table.to_json(orient="records"))
+    return json.dumps({"rows": records})
+
+
+def run_heldout(
+    config: HeldoutConfig, *, progress: bool = True, fresh: bool = False
+) -> pd.DataFrame:
+    """Compute (or reuse) every cell, then write ``heldout.csv`` (one line per problem and row),
+    ``summary.csv``, ``heldout.md``, ``heldout.png``/``.pdf`` and ``manifest.json`` into
+    ``config.out``; returns the summary."""
+    started = time.perf_counter()
+    unknown = sorted(set(config.rows) - set(ROWS))
+    if unknown:
+        from popbench.errors import ValueRangeError
+
+        raise ValueRangeError("heldout rows", ",".join(unknown), ", ".join(ROWS))
+    cache = CellCache(config.out / "cells")
+    frame = pd.DataFrame(
+        run_cells(cell_specs(config), compute_cell, cache, progress=progress, fresh=fresh)
+    )
+    table = summary(frame)
+    config.out.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(config.out / "heldout.csv", index=False, float_format="%.10g")
+    table.to_csv(config.out / "summary.csv", index=False, float_format="%.10g")
+    (config.out / "heldout.md").write_text(markdown(table))
+    figure(frame, config.out / "heldout")
+    write_manifest(config.out, wall_s=time.perf_counter() - started)
+    return table
