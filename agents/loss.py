@@ -164,40 +164,52 @@ class GASACLoss(LossModule):
         """[G] float: 1 where the chosen edge is a real edge (not the forced no-op)."""
         return (out.edge < out.action_mask.shape[-1] - 1).to(out.delta.dtype)
 
-    # -- forward -------------------------------------------------------------------------------
+    # -- the four losses (each reaches only its own parameter group) ---------------------------
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDict:
-        """Losses for a batch [B] of transitions; returns loss_* scalars and diagnostics."""
+    @torch.no_grad()
+    def soft_target(
+        self, tensordict: TensorDictBase, next_graphs: GraphBatch, alphas: tuple[Tensor, Tensor]
+    ) -> Tensor:
+        """[B, n] critic target y_i = c·r_i + γ (1 − terminated_i) V_i(s′), with
+        V_i(s′) = min_k Q̄_k,i(s′, a′) + α_e H[π(· | s′)] − α_δ log π(δ′ | s′, e′),  a′ ~ π
+        (Q̄: the target critic; the δ term only for agents that act)."""
         keys = self.tensor_keys
         batch, agents = tensordict.get(keys.action_mask).shape[:2]
-        alpha_edge, alpha_delta = self._alphas()
-        graphs = self._graphs(tensordict, next_=False)
-        next_graphs = self._graphs(tensordict, next_=True)
+        alpha_edge, alpha_delta = alphas
+        next_out = self._act(tensordict, next_graphs, next_=True)
+        with self.target_critic_network_params.to_module(self.critic_network):
+            next_q, _ = self.critic_network(next_graphs, next_out.edge_weights, next_out.delta)
+        entropy_bonus = (
+            alpha_edge * next_out.edge_entropy
+            - alpha_delta * self._acting(next_out) * next_out.delta_log_prob
+        )
+        soft_value = next_q.min(-1).values + entropy_bonus.view(batch, agents)
+        reward = self.reward_scale * tensordict.get(("next",) + keys.reward).reshape(batch, agents)
+        terminated = self._agent_flag(tensordict, keys.terminated, (batch, agents))
+        return reward + self.gamma * (1.0 - terminated) * soft_value
 
-        # Soft Q target (eq. sac with separate temperatures for the two heads).
-        with torch.no_grad():
-            next_out = self._act(tensordict, next_graphs, next_=True)
-            with self.target_critic_network_params.to_module(self.critic_network):
-                next_q, _ = self.critic_network(next_graphs, next_out.edge_weights, next_out.delta)
-            entropy_bonus = (
-                alpha_edge * next_out.edge_entropy
-                - alpha_delta * self._acting(next_out) * next_out.delta_log_prob
-            )
-            soft_value = next_q.min(-1).values + entropy_bonus.view(batch, agents)
-            reward = self.reward_scale * tensordict.get(("next",) + keys.reward).reshape(
-                batch, agents
-            )
-            terminated = self._agent_flag(tensordict, keys.terminated, (batch, agents))
-            target = reward + self.gamma * (1.0 - terminated) * soft_value
-
+    def qvalue_loss(
+        self, tensordict: TensorDictBase, graphs: GraphBatch, target: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """L_Q = mean_{B,n} Σ_k ρ(Q_k,i(s, a) − y_i) on the stored actions a (ρ:
+        `critic_regression`); returns (L_Q, [B, n, 2] Q of the taken actions, [B, n, 2] TD
+        errors)."""
+        keys = self.tensor_keys
         choices = graphs.action_mask.shape[-1]
         taken_edge = F.one_hot(tensordict.get(keys.action_edge).reshape(-1), choices)
         taken_delta = tensordict.get(keys.action_delta).reshape(-1, 3)
         q_taken, _ = self.critic_network_apply(graphs, taken_edge, taken_delta)
         td_error = q_taken - target.unsqueeze(-1)
-        loss_qvalue = critic_regression(td_error, self.huber_delta).sum(-1).mean()
+        loss = critic_regression(td_error, self.huber_delta).sum(-1).mean()
+        return loss, q_taken, td_error
 
-        # Actor: reparameterised hybrid action against the (detached) critic.
+    def actor_loss(
+        self, tensordict: TensorDictBase, graphs: GraphBatch, alphas: tuple[Tensor, Tensor]
+    ) -> tuple[Tensor, ActorOutput, Tensor, Tensor]:
+        """L_π = mean[−α_e H[π(· | s)] + α_δ log π(δ | s, e) − min_k Q_k,i(s, ã)] + λ_gate·mean z,
+        ã ~ π reparameterised, the critic detached and differentiated through agent i's own
+        action only; returns (L_π, the actor pass, [G] acting flags, [G] masked log π(δ))."""
+        alpha_edge, alpha_delta = alphas
         out = self._act(tensordict, graphs, next_=False)
         with self.critic_network_params.detach().to_module(self.critic_network):
             q_policy, _ = self.critic_network(
@@ -205,29 +217,49 @@ class GASACLoss(LossModule):
             )
         acting = self._acting(out)
         delta_log_prob = acting * out.delta_log_prob
-        loss_actor = (
+        loss = (
             -alpha_edge * out.edge_entropy
             + alpha_delta * delta_log_prob
             - q_policy.min(-1).values.reshape(-1)
         ).mean() + self.gate_l1 * out.encoding.gate_l1
+        return loss, out, acting, delta_log_prob
 
-        # Temperatures.
+    def alpha_edge_loss(self, out: ActorOutput, graphs: GraphBatch) -> tuple[Tensor, Tensor]:
+        """L(α_e) = mean[log α_e · (H[π(· | s)] − H̄_e(s))], H̄_e(s) = ratio · log |allowed edges|;
+        returns (the loss, [G] H̄_e)."""
         allowed = graphs.action_mask.sum(-1).to(out.delta.dtype)
         edge_target = self.edge_entropy_ratio * torch.log(allowed)
-        loss_alpha_edge = (self.log_alpha_edge * (out.edge_entropy - edge_target).detach()).mean()
-        delta_gap = (out.delta_log_prob + self.delta_target_entropy).detach()
-        loss_alpha_delta = -(self.log_alpha_delta * acting * delta_gap).sum() / acting.sum().clamp(
-            min=1.0
-        )
+        loss = (self.log_alpha_edge * (out.edge_entropy - edge_target).detach()).mean()
+        return loss, edge_target
 
+    def alpha_delta_loss(self, out: ActorOutput, acting: Tensor) -> Tensor:
+        """L(α_δ) = −mean over acting agents of log α_δ · (log π(δ | s, e) + H̄_δ)."""
+        delta_gap = (out.delta_log_prob + self.delta_target_entropy).detach()
+        return -(self.log_alpha_delta * acting * delta_gap).sum() / acting.sum().clamp(min=1.0)
+
+    # -- forward -------------------------------------------------------------------------------
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        """Losses for a batch [B] of transitions; returns loss_* scalars and diagnostics.
+
+        The order of the parts is fixed (target, critic, actor, temperatures): the target and
+        the actor each sample an action, so reordering them changes the random stream."""
+        alphas = self._alphas()
+        graphs = self._graphs(tensordict, next_=False)
+        next_graphs = self._graphs(tensordict, next_=True)
+        target = self.soft_target(tensordict, next_graphs, alphas)
+        loss_qvalue, q_taken, td_error = self.qvalue_loss(tensordict, graphs, target)
+        loss_actor, out, acting, delta_log_prob = self.actor_loss(tensordict, graphs, alphas)
+        loss_alpha_edge, edge_target = self.alpha_edge_loss(out, graphs)
+        loss_alpha_delta = self.alpha_delta_loss(out, acting)
         return TensorDict(
             {
                 "loss_actor": loss_actor,
                 "loss_qvalue": loss_qvalue,
                 "loss_alpha_edge": loss_alpha_edge,
                 "loss_alpha_delta": loss_alpha_delta,
-                "alpha_edge": alpha_edge,
-                "alpha_delta": alpha_delta,
+                "alpha_edge": alphas[0],
+                "alpha_delta": alphas[1],
                 "entropy_edge": out.edge_entropy.mean().detach(),
                 "target_entropy_edge": edge_target.mean().detach(),
                 "log_prob_delta": (delta_log_prob.sum() / acting.sum().clamp(min=1.0)).detach(),
