@@ -109,27 +109,6 @@ def starting_problem(problem: DistributedProblem, init: str) -> DistributedProbl
     return DistributedProblem(graph, problem.initial, problem.outlier_mask)
 
 
-def node_features(core, robots: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
-    """[S, 6] float32 node features of local `vertices` of `robots` (envs.core.observation)."""
-    from envs.core import between
-
-    t = core.tensors
-    poses = t["poses"][0]
-    relative = between(poses[robots, 0], poses[robots, vertices])
-    features = torch.stack(
-        [
-            relative[:, 0],
-            relative[:, 1],
-            torch.sin(relative[:, 2]),
-            torch.cos(relative[:, 2]),
-            t["log_degree"][0][robots, vertices],
-            t["owned"][0][robots, vertices].to(poses.dtype),
-        ],
-        -1,
-    )
-    return (features * t["node_mask"][0][robots, vertices].unsqueeze(-1)).to(torch.float32)
-
-
 def moved_vertices(core, heads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(robots, local vertices) whose features changed after robots moved `heads` [n]: the
     moved vertex, or every real vertex of a robot that moved its frame vertex 0."""
@@ -201,7 +180,7 @@ def run_episode(
         owner, slots = owner[real], slots[real]
         policy.observe(
             robots * dims.vertices + vertices,
-            node_features(core, robots, vertices),
+            core.vertex_features(robots, vertices),
             owner * num_edges + slots,
             t["residuals"][0][owner, slots].to(torch.float32),
         )

@@ -68,7 +68,9 @@ import torch
 from envs.observation import REWARDS, Dimensions, pack_problem
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
+from popbench.objective import edge_costs
 
+_FEATURE_KEYS = ("poses", "log_degree", "owned", "node_mask")
 DEFAULT_DELTA_MAX = (0.5, 0.5, 0.3)  # (δx [m], δy [m], δθ [rad])
 EPSILON = 1e-6  # ε of the reward's normalisation and terminal log-ratio
 INVALID_EDGE_MODES = ("raise", "repair")
@@ -110,9 +112,29 @@ def residuals(
     return torch.cat([r_t, wrap(relative[..., 2:] - measurements[..., 2:])], -1)
 
 
-def edge_costs(r: torch.Tensor, kappa: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-    """Per-edge ``κ r_θ² + τ ‖r_t‖²`` (paper eq. 1 terms), shape ``r.shape[:-1]``."""
-    return kappa * r[..., 2] ** 2 + tau * (r[..., 0] ** 2 + r[..., 1] ** 2)
+def node_features(
+    frame: torch.Tensor,
+    poses: torch.Tensor,
+    log_degree: torch.Tensor,
+    owned: torch.Tensor,
+    node_mask: torch.Tensor,
+) -> torch.Tensor:
+    """``(..., 6)`` float32 node features ``[x, y [m], sin θ, cos θ, log(1 + degree), owned]``,
+    zero on padding: ``poses (..., 3)`` in the frame of ``frame`` (broadcast against ``poses``;
+    the agent's first owned pose); ``log_degree``, ``owned``, ``node_mask`` of shape ``(...)``."""
+    relative = between(frame, poses)
+    features = torch.stack(
+        [
+            relative[..., 0],
+            relative[..., 1],
+            torch.sin(relative[..., 2]),
+            torch.cos(relative[..., 2]),
+            log_degree,
+            owned.to(poses.dtype),
+        ],
+        -1,
+    )
+    return (features * node_mask.unsqueeze(-1)).to(torch.float32)
 
 
 def _gather_rows(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
@@ -374,21 +396,11 @@ class PGOCore:
         t = self.tensors
         v, e = self.dims.vertices, self.dims.edges
         poses = t["poses"][:, :, :v]
-        relative = between(poses[:, :, :1], poses)
         node_mask = t["node_mask"]
-        features = torch.stack(
-            [
-                relative[..., 0],
-                relative[..., 1],
-                torch.sin(relative[..., 2]),
-                torch.cos(relative[..., 2]),
-                t["log_degree"],
-                t["owned"].to(self.dtype),
-            ],
-            -1,
-        ) * node_mask.unsqueeze(-1)
         return {
-            "node_features": features.to(torch.float32),
+            "node_features": node_features(
+                poses[:, :, :1], poses, t["log_degree"], t["owned"], node_mask
+            ),
             "node_mask": node_mask,
             "edge_index": t["edge_index"],
             "edge_attr": t["edge_attr"],
@@ -396,6 +408,20 @@ class PGOCore:
             "processed": t["processed"][..., :e].clone(),
             "residuals": t["residuals"][..., :e, :].to(torch.float32),
         }
+
+    def vertex_features(
+        self, robots: torch.Tensor, vertices: torch.Tensor, element: int = 0
+    ) -> torch.Tensor:
+        """``(S, 6)`` float32 :func:`node_features` of local ``vertices (S,)`` of ``robots (S,)``
+        in batch element ``element`` (the rows of ``observation()["node_features"]``)."""
+        t = {k: t[element] for k, t in self.tensors.items() if k in _FEATURE_KEYS}
+        return node_features(
+            t["poses"][robots, 0],
+            t["poses"][robots, vertices],
+            t["log_degree"][robots, vertices],
+            t["owned"][robots, vertices],
+            t["node_mask"][robots, vertices],
+        )
 
     def _cache_edge_index(self) -> None:
         """``edge_index (B, n, 2, E)``: local (tail, head), 0 on padding (a new tensor)."""

@@ -82,7 +82,7 @@ from popbench import se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
-from popbench.objective import linearise, residuals, weights
+from popbench.objective import edge_costs, linearise, residuals, weights
 from popbench.partition import adjacency
 
 INFORMATION_FLOOR = 1e-9  # added to every Λ_s^i so that the weighted mean is always defined
@@ -217,12 +217,6 @@ def _hessian_blocks(team: _Team, poses: np.ndarray) -> tuple:
     )
     gradients = (2.0 * np.einsum("mki,mk->mi", jt, e), 2.0 * np.einsum("mki,mk->mi", jh, e))
     return np.einsum("mk,mk->m", e, e), blocks, gradients
-
-
-def _edge_costs(team: _Team, poses: np.ndarray) -> np.ndarray:
-    """Per-edge eq. 1 costs ``(M_T,)`` of the team graph at ``poses`` ``(V, 3)``."""
-    r = residuals(team.graph, poses)
-    return team.tau * (r[:, 0] ** 2 + r[:, 1] ** 2) + team.kappa * r[:, 2] ** 2
 
 
 def _information(team: _Team, poses: np.ndarray) -> np.ndarray:
@@ -419,7 +413,12 @@ def _x_update(
             factorisations += int(pending.sum())
             trial = plus(poses, system.increments(step, team.graph.num_poses))
             trial_offsets = minus(trial[team.copy_rows], target)
-            trial_cost = _robot_costs(team, _edge_costs(team, trial), trial_offsets, weight)
+            trial_cost = _robot_costs(
+                team,
+                edge_costs(residuals(team.graph, trial), team.kappa, team.tau),
+                trial_offsets,
+                weight,
+            )
             better = pending & (trial_cost <= cost)
             poses = np.where(better[team.vertex_robot, None], trial, poses)
             damping[better] = np.maximum(damping[better] / 10.0, MIN_DAMPING)

@@ -17,7 +17,7 @@ with ``κ = Λ_θθ`` and ``τ = 2 / tr(Λ_tt⁻¹)`` (SE-Sync / DPGO / MM-PGO w
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -26,6 +26,8 @@ from popbench.graph import PoseGraph
 
 # J = R(π/2); dR(θ)/dθ = R(θ) J.
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+Array = TypeVar("Array")  # np.ndarray or torch.Tensor: edge_costs uses only elementwise ops
 
 
 def weights(information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,6 +51,16 @@ def residuals(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
     return np.column_stack([r_t, r_theta])
 
 
+def edge_costs(r: Array, kappa: Array, tau: Array) -> Array:
+    """Per-edge terms of paper eq. 1, ``κ_e r_θ² + τ_e ‖r_t‖²``, shape ``r.shape[:-1]``.
+
+    ``r (..., 3)``: residuals ``[r_t, r_θ]`` (:func:`residuals`); ``kappa``, ``tau``
+    ``r.shape[:-1]`` (:func:`weights`). Only elementwise arithmetic, so the same function serves
+    NumPy arrays and torch tensors (envs.core's batched residuals) alike.
+    """
+    return kappa * r[..., 2] ** 2 + tau * (r[..., 0] ** 2 + r[..., 1] ** 2)
+
+
 def g2o_errors(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
     """g2o EDGE_SE2 errors ``t2v(z̃⁻¹ x_p⁻¹ x_q) = [R(θ̃)ᵀ r_t, r_θ]``, ``(M, 3)``."""
     r = residuals(graph, poses)
@@ -68,10 +80,8 @@ def quadratic_form(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
 
 
 def objective(graph: PoseGraph, poses: np.ndarray | None = None) -> float:
-    """``F`` (paper eq. 1, κ/τ weights)."""
-    r = residuals(graph, poses)
-    kappa, tau = weights(graph.information)
-    return float(np.sum(kappa * r[:, 2] ** 2 + tau * np.sum(r[:, :2] ** 2, axis=1)))
+    """``F`` (paper eq. 1, κ/τ weights): the sum of :func:`edge_costs`."""
+    return float(np.sum(edge_costs(residuals(graph, poses), *weights(graph.information))))
 
 
 def chordal_objective(graph: PoseGraph, poses: np.ndarray | None = None) -> float:

@@ -18,7 +18,6 @@ from agents.inference import IncrementalPolicy
 from agents.methods import (
     DEFAULT_CHECKPOINT,
     moved_vertices,
-    node_features,
     solve_prop_v1,
     solve_prop_v2,
 )
@@ -106,7 +105,7 @@ def test_incremental_inference_equals_full_forward(problem) -> None:
             real = slots < dims.edges
             policy.observe(
                 robots * dims.vertices + vertices,
-                node_features(core, robots, vertices),
+                core.vertex_features(robots, vertices),
                 owner[real] * dims.edges + slots[real],
                 t["residuals"][0][owner[real], slots[real]].float(),
             )
