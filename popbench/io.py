@@ -6,6 +6,16 @@ TORO edge: ``EDGE2 i j dx dy dθ I11 I12 I22 I33 I13 I23``; TORO's translation e
 the measurement frame, so the cost-preserving conversion is ``Λ_g2o = Bᵀ Λ_TORO B`` with
 ``B = blkdiag(R(θ̃), 1)``.
 
+TORO ``EQUIV i j`` (as in Olson's ``w10000.graph``) declares vertices ``i`` and ``j`` to be the
+same pose. They are merged, not tied by a tight edge: an infinitely stiff constraint is exactly
+the identification of the two variables, and a finite stand-in would only add a badly
+conditioned edge. Each class of equivalent ids (EQUIV lines chain) keeps its smallest id and that
+vertex's pose; the other vertices are removed, their edges are redirected to the kept vertex, the
+ids are renumbered contiguously in their original order, and an edge that ends up joining a
+vertex to itself is dropped (with a :class:`UserWarning` that counts them). Edge kinds are then
+labelled on the new ids (:func:`popbench.graph.single_robot_kinds`). :func:`read_vertices`
+applies the same merge, so a ground-truth file with the same EQUIV lines stays aligned.
+
 Edges written ``i > j`` are kept as written. Files without VERTEX lines get the odometry
 composition of their edges (:func:`popbench.graph.odometry_composition`).
 """
@@ -13,6 +23,7 @@ composition of their edges (:func:`popbench.graph.odometry_composition`).
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -59,7 +70,10 @@ _FIELDS = {
     "VERTEX2": ("id", "x", "y", "theta"),
     "EDGE_SE2": ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33"),
     "EDGE2": ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I22", "I33", "I13", "I23"),
+    "EQUIV": ("i", "j"),
 }
+# TORO: ``EQUIV i j`` declares vertices i and j the same pose (merged on reading).
+_EQUIV_TAG = "EQUIV"
 MAX_VERTEX_ID = 2**31 - 1
 
 
@@ -80,7 +94,7 @@ def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: 
             message = f"{tag} field {fields[k]} (value {k + 1} of {count - 1}) is non-finite"
             raise DataFormatError(path, lineno, f"{message} ({token!r})")
         values.append(value)
-    ids = (0, 1) if tag.startswith("EDGE") else (0,)
+    ids = (0,) if tag.startswith("VERTEX") else (0, 1)
     for k in ids:
         if values[k] != int(values[k]) or values[k] < 0:
             message = f"{tag}: vertex id {tokens[k + 1]!r} is not an integer ≥ 0"
@@ -90,10 +104,12 @@ def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: 
             message = f"{tag}: vertex id {tokens[k + 1]!r} is out of range ({allowed})"
             raise DataFormatError(path, lineno, message)
     if len(ids) == 2 and values[0] == values[1]:
-        message = (
-            f"{tag} joins vertex {int(values[0])} to itself "
-            "(pose-graph edges join two different poses)"
+        why = (
+            "an EQUIV line names two different vertices"
+            if tag == _EQUIV_TAG
+            else ("pose-graph edges join two different poses")
         )
+        message = f"{tag} joins vertex {int(values[0])} to itself ({why})"
         raise DataFormatError(path, lineno, message)
     return values
 
@@ -105,6 +121,8 @@ class _Lines(NamedTuple):
     vertex_lines: np.ndarray  # (V,) 1-based line numbers
     edges: np.ndarray  # (E, 11) i, j, dx, dy, dθ, six information numbers
     edge_lines: np.ndarray  # (E,)
+    equivs: np.ndarray  # (Q, 2) int64 i, j of the TORO EQUIV lines
+    equiv_lines: np.ndarray  # (Q,)
 
 
 def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
@@ -113,6 +131,8 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
     vertex_lines: list[int] = []
     edges: list[list[float]] = []
     edge_lines: list[int] = []
+    equivs: list[list[float]] = []
+    equiv_lines: list[int] = []
     lineno = 0
     try:
         with path.open(encoding="utf-8") as handle:
@@ -128,6 +148,9 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
                     if parse_edges:
                         edges.append(_parse_numbers(path, lineno, tokens, 12, tag))
                     edge_lines.append(lineno)
+                elif tag == _EQUIV_TAG and fmt == "toro":
+                    equivs.append(_parse_numbers(path, lineno, tokens, 3, tag))
+                    equiv_lines.append(lineno)
                 elif tag not in _IGNORED_TAGS:
                     raise DataFormatError(
                         path, lineno, f"unknown tag {tag!r} (expected {vertex_tag} or {edge_tag})"
@@ -139,7 +162,49 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
         np.asarray(vertex_lines, dtype=np.int64),
         np.asarray(edges, dtype=np.float64).reshape(-1, 11),
         np.asarray(edge_lines, dtype=np.int64),
+        np.asarray(equivs, dtype=np.float64).reshape(-1, 2).astype(np.int64),
+        np.asarray(equiv_lines, dtype=np.int64),
     )
+
+
+def _equivalence_map(path: Path, lines: _Lines, num_poses: int) -> np.ndarray | None:
+    """``(num_poses,)`` new id of each original vertex after merging the EQUIV classes (each
+    class kept as its smallest id, survivors renumbered 0 … in their original order), or
+    ``None`` when the file has no EQUIV lines.
+
+    Raises:
+        DataFormatError: an EQUIV line naming a vertex id ≥ ``num_poses``.
+    """
+    if not lines.equivs.size:
+        return None
+    bad = np.flatnonzero(lines.equivs.max(axis=1) >= num_poses)
+    if bad.size:
+        k = int(bad[0])
+        vertex = int(lines.equivs[k].max())
+        raise DataFormatError(
+            path,
+            int(lines.equiv_lines[k]),
+            f"EQUIV references vertex {vertex}, which is not in the graph (ids 0–{num_poses - 1})",
+        )
+    root = np.arange(num_poses)
+
+    def find(v: int) -> int:
+        while root[v] != v:
+            root[v] = root[root[v]]
+            v = int(root[v])
+        return v
+
+    for i, j in lines.equivs:  # one step per EQUIV line, at parse time
+        a, b = find(int(i)), find(int(j))
+        root[max(a, b)] = min(a, b)
+    while True:  # flatten every chain to its root, vectorised
+        parent = root[root]
+        if np.array_equal(parent, root):
+            break
+        root = parent
+    kept = root == np.arange(num_poses)
+    new_id = np.cumsum(kept) - 1
+    return new_id[root]
 
 
 def _vertex_poses(path: Path, lines: _Lines) -> np.ndarray:
@@ -215,12 +280,26 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
     _check_information(path, information, lines.edge_lines)
 
-    if lines.vertices.size:
-        poses = _vertex_poses(path, lines)
-        _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
-    else:
-        _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
-        num_poses = int(max(tails.max(), heads.max())) + 1
+    _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
+    poses = _vertex_poses(path, lines) if lines.vertices.size else None
+    num_poses = len(poses) if poses is not None else int(max(tails.max(), heads.max())) + 1
+    new_id = _equivalence_map(path, lines, num_poses)
+    if new_id is not None:
+        tails, heads = new_id[tails], new_id[heads]
+        if poses is not None:
+            poses = _merged_poses(poses, new_id)
+        num_poses = int(new_id.max()) + 1
+        loops = tails == heads
+        if loops.any():
+            warnings.warn(
+                f"{path}: EQUIV merged {lines.equivs.shape[0]} vertex pair(s); dropped "
+                f"{int(loops.sum())} edge(s) that joined equivalent vertices (self-loops)",
+                stacklevel=2,
+            )
+            keep = ~loops
+            tails, heads = tails[keep], heads[keep]
+            measurements, information = measurements[keep], information[keep]
+    if poses is None:
         poses = odometry_composition(num_poses, tails, heads, measurements)
     return make_graph(poses, tails, heads, measurements, information, name=name or path.stem)
 
@@ -237,7 +316,16 @@ def read_vertices(path: str | Path) -> np.ndarray:
     lines = _scan(path, fmt, parse_edges=False)
     if not lines.vertices.size:
         raise DataFormatError(path, 0, f"no {_FORMATS[fmt][0]} lines")
-    return _vertex_poses(path, lines)
+    poses = _vertex_poses(path, lines)
+    new_id = _equivalence_map(path, lines, len(poses))
+    return poses if new_id is None else _merged_poses(poses, new_id)
+
+
+def _merged_poses(poses: np.ndarray, new_id: np.ndarray) -> np.ndarray:
+    """The ``(N', 3)`` poses of the kept vertices: each merged class takes the pose of its kept
+    (smallest) id, which is the first original vertex mapped to each new id."""
+    _, first = np.unique(new_id, return_index=True)
+    return poses[first]
 
 
 def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:

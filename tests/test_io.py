@@ -215,3 +215,67 @@ def test_ground_truth_vertices_only(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_vertices(write(tmp_path, text)), [[0, 0, 0], [1, 0, 0.1]])
     with pytest.raises(DataFormatError, match="no VERTEX_SE2 lines"):
         read_vertices(write(tmp_path, EDGE + "\n", "edges.g2o"))
+
+
+# TORO EQUIV: vertices 1 and 3 are one pose (chained with 3 ≡ 4); edges redirected, self-loops
+# dropped, ids renumbered in order.
+EQUIV_TORO = """VERTEX2 0 0 0 0
+VERTEX2 1 1 0 0
+VERTEX2 2 2 0 0
+VERTEX2 3 1.5 0 0
+VERTEX2 4 1.6 0 0
+VERTEX2 5 3 0 0
+EDGE2 0 1 1 0 0 1 0 1 1 0 0
+EDGE2 1 2 1 0 0 2 0 2 2 0 0
+EDGE2 2 3 -1 0 0 3 0 3 3 0 0
+EDGE2 3 4 0 0 0 4 0 4 4 0 0
+EDGE2 4 5 2 0 0 5 0 5 5 0 0
+EQUIV 1 3
+EQUIV 4 3
+"""
+
+
+def test_toro_equiv_merges_vertices_and_redirects_edges(tmp_path: Path) -> None:
+    path = write(tmp_path, EQUIV_TORO, "w.graph")
+    with pytest.warns(UserWarning, match=r"w\.graph: EQUIV merged 2 .*dropped 1 edge"):
+        graph = read_graph(path)
+    # Classes {0}, {1, 3, 4}, {2}, {5} → new ids 0, 1, 2, 3; vertex 1's pose is kept.
+    np.testing.assert_array_equal(graph.poses, [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    np.testing.assert_array_equal(graph.tails, [0, 1, 2, 1])
+    np.testing.assert_array_equal(graph.heads, [1, 2, 1, 3])
+    np.testing.assert_array_equal(graph.measurements[:, 0], [1, 1, -1, 2])
+    # The dropped edge 3–4 (information 4) is gone; the others keep their own information.
+    np.testing.assert_array_equal(graph.information[:, 2, 2], [1, 2, 3, 5])
+    np.testing.assert_array_equal(read_vertices(path), graph.poses)
+
+
+def test_toro_equiv_without_vertex_lines_or_self_loops(tmp_path: Path) -> None:
+    text = "EDGE2 0 1 1 0 0 1 0 1 1 0 0\nEDGE2 2 3 1 0 0 1 0 1 1 0 0\nEQUIV 1 2\n"
+    graph = read_graph(write(tmp_path, text, "n.graph"))
+    np.testing.assert_array_equal(graph.tails, [0, 1])
+    np.testing.assert_array_equal(graph.heads, [1, 2])
+    np.testing.assert_allclose(graph.poses, [[0, 0, 0], [1, 0, 0], [2, 0, 0]])
+
+
+@pytest.mark.parametrize(
+    ("equiv", "phrase"),
+    [
+        ("EQUIV 1", "EQUIV needs 2 values after the tag, found 1"),
+        ("EQUIV 1 x", "EQUIV field j (value 2 of 2) is 'x'"),
+        ("EQUIV 1 1.5", "vertex id '1.5' is not an integer"),
+        ("EQUIV 2 2", "EQUIV joins vertex 2 to itself"),
+        ("EQUIV 1 9", "EQUIV references vertex 9, which is not in the graph (ids 0–5)"),
+    ],
+)
+def test_malformed_equiv_line_names_file_and_line(tmp_path: Path, equiv: str, phrase: str) -> None:
+    path = write(tmp_path, EQUIV_TORO.replace("EQUIV 4 3", equiv), "bad.graph")
+    with pytest.raises(DataFormatError) as caught:
+        read_graph(path)
+    assert str(caught.value).startswith(f"{path}:13: ")
+    assert phrase in str(caught.value)
+    assert "\n" not in str(caught.value)
+
+
+def test_equiv_is_not_a_g2o_tag(tmp_path: Path) -> None:
+    with pytest.raises(DataFormatError, match="unknown tag 'EQUIV'"):
+        read_graph(write(tmp_path, VERTICES + "EQUIV 0 1\n"))
