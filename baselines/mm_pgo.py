@@ -1,6 +1,7 @@
 """MM-PGO / AMM-PGO (Fan & Murphey, T-RO 2024): distributed majorisation–minimisation on SE(2).
 
-Method ``"mm-pgo"``; REFERENCES.md §3 and §8.
+Method ``"mm-pgo"``; REFERENCES.md §3 and §8. Design notes, measurements and the variants tried
+and not kept: docs/mm_pgo.md.
 
 **Objective.** ``F_chordal(X) = Σ_e F_e`` with ``F_e = κ_e‖R_q − R_pR̃_e‖²_F + τ_e‖t_q − t_p −
 R_pt̃_e‖²`` (SE-Sync convention; MM-PGO's internal ``f = ½F``). Each ``F_e`` is a convex quadratic
@@ -21,108 +22,12 @@ edges. Splitting ``F_e(yᵏ)`` in halves, robot α's surrogate is
 ``Σ_α G^α(X^α | Xᵏ) ≥ F(X)`` with equality at ``Xᵏ``, and the robots' subproblems are independent
 given the neighbours' poses of the previous iterate (Jacobi: all robots update in parallel).
 
-**Node update** (in place of MM-PGO's ``proximal`` + TNT refinement, REFERENCES §3.4). Minimising
-(1) exactly over ``SE(2)^{n_α}`` is a local PGO; an MM step only needs to *decrease* it. Each
-robot takes one Gauss–Newton step on (1) and recovers its translations in closed form:
-
-1. Rotations: ``δ = −H_α⁻¹ g_α``, ``g_α`` the gradient of (1) at the base point (= ``∇_α F``) in
-   body-frame increments (``t_i ← t_i + R_i a_i``, ``θ_i ← θ_i + b_i``), ``H_α`` the Gauss–Newton
-   Hessian of (1) — intra edges at a recent geometry, inter terms (quadratic in linear
-   coordinates) exact — factorised at the start and refactorised when its geometry has
-   drifted (below; ``hessian_interval=0``: once, at zero residual, i.e. from the measurements
-   only). Then ``θ_i ← θ_i + b_i`` (the exact retraction onto SO(2)).
-2. Translations: the exact minimiser of (1) over the robot's translations for the new rotations,
-   a weighted-Laplacian system ``L_α t = b`` (intra ``τ`` Laplacian + ``2τ`` of each inter edge on
-   the diagonal), constant and factorised once (MM-PGO's ``recover_translations``).
-3. Safeguard (plain MM steps): if (1) did not decrease, the rotation step is halved (up to 3
-   times), then dropped (translation recovery alone cannot increase (1)). Hence **F is
-   non-increasing** for ``accelerated=False`` (the MM descent property; tested).
-
-Design notes (measured on MITb, n = 3): minimising the surrogate over unconstrained
-``R ∈ R^{2×2}`` and projecting does not converge to a stationary point (with one robot it
-reproduces the chordal relaxation every iteration); several inner Gauss–Newton steps per
-iteration did not speed up the outer MM; a Hessian fixed at zero residual made the accelerated
-scheme diverge on MITb, whose chordal initialisation is 44 % above the optimum. The gauge pose
-(the first vertex of robot 0) is held fixed.
-
-*Hessian refresh.* ``H`` depends on the iterate only through each intra edge's lever
-``J R_pᵀ(t_q − t_p)`` and relative rotation ``R(θ_q − θ_p)``, i.e. through the translation
-residual's Jacobian ``J_e = [−I, −lever | R(φ), 0]``. Every ``hessian_interval`` (10) iterations the
-largest relative change ``‖J_e − J_e⁰‖_F / ‖J_e⁰‖_F`` since the last factorisation is measured
-(O(M), ≈ 1/10 of an iteration) and ``H`` is refactorised when it exceeds ``hessian_tolerance``
-(0.02); ``hessian_tolerance=0`` refactorises every ``hessian_interval`` iterations (the former
-rule). Measured (1000 iterations, n = 7 unless stated): from the chordal start the geometry barely
-moves, so the factorisations drop from 100 to 1–5 with the same final F (m3500 193.9554, city10k
-638.6643, MITb n = 3 / 7 / 35 61.1541 / 61.1739 / 61.3114, each identical to 4 decimals with
-``hessian_tolerance=0``) — the factorisation was ≈ 40 % of the run; from odometry the geometry keeps
-moving and ``H`` is still refactorised at nearly every check (m3500, city10k: 99; MITb: 50). (From
-odometry MITb stops in a local minimum, not for lack of iterations: F after 1000 / 3000 iterations
-1535 / 1533 accelerated, 1431 / 1299 plain.) MITb's divergent zero-residual Hessian had drift 0.24
-at the chordal start. A looser 0.05 left the Hessian of the odometry start in place throughout on
-the 30-pose test loop (``tests/test_mm_pgo.py``) and slowed the final convergence there (relative
-gap after 300 iterations 1.4e-6 against 1.0e-6 with 0, 0.01 or 0.02).
-
-**Acceleration** (AMM-PGO, REFERENCES §3.5): ``s_{k+1} = ½ + ½√(4s_k² + 1)``,
-``γ_k = (s_k − 1)/s_{k+1}``, ``Y = Xᵏ ⊕ γ_k(Xᵏ ⊖ Xᵏ⁻¹)`` (translations linearly, headings by the
-wrapped difference; each robot extrapolates its own and its neighbours' poses, which it holds
-from the last two exchanges), candidate = node update from ``Y`` without the safeguard. With
-``F_k = F(Xᵏ)`` and ``G = Σ_α G^α(candidate | Xᵏ) ≥ F(candidate)``: ``F̄₀ ← (1−η₀)F̄₀ + η₀F_k``
-(η₀ = 5e-4), ``F̄₁ ← max(F_k, (1−η₁)F̄₁ + η₁F_k)`` (η₁ = 2.5e-2); a **hard restart** when
-``G > F̄₀``, a **soft restart** when ``G > F̄₁`` and counter₀ ≥ 10, or ``G > F_{k}`` and
-counter₁ > 25 (counter₀ −2 when ``F_k ≤ F̄₁`` else +1; counter₁ reset when ``F`` decreased else
-+1). A restart replaces every robot's candidate by its safeguarded plain step from ``Xᵏ``; a hard
-one also sets ``s ← max(s/2, 1)``; both divide counter₀ by 3 and reset counter₁. The rules are
-applied to team sums (two scalars all-reduced per iteration, as AMM-PGO* with its master node),
-not per robot as in AMM-PGO#: the per-robot rule on robot shares of F oscillated (measured).
-
-*Deviation (odometry starts):* after each update ``F̄₀ ← min(F̄₀, F̄₁)``. §3.5 initialises ``F̄₀``
-at the first ``F``; with η₀ = 5e-4 it then stays near that ``F`` for thousands of iterations, so
-from a start orders of magnitude above the optimum (odometry) the hard restart never fired and
-the accelerated iterates wandered (measured, 1000 iterations, n = 7: mit 1.3e5, m3500 6.3e5,
-city10k 7.3e6). Capped by the fast average, ``F̄₀`` follows the actual ``F`` down (mit 1.1e3,
-m3500 7.2e3, city10k 2.2e5; intel, csail unchanged). Measured alternatives, not kept: a hard
-restart whenever ``G > F_k`` (monotone; intel from odometry stalled at 17 % above the optimum)
-and ``F̄₀ = F_k`` until ``F`` first rises (the same, as hard restarts keep ``F`` monotone).
-
-**Robust kernels** (:mod:`baselines.robust`) on loop-closure and inter-robot edges (kinds LOOP,
-INTER_RELATIVE, INTER_LOOP; odometry keeps weight 1): IRLS weights ``w_e = ρ'(s_e)`` of the
-unweighted chordal cost ``s_e = F_e`` multiply ``κ_e, τ_e``. They are recomputed from the
-current iterate before the first iteration and every ``weight_interval`` (20) iterations
-(static between updates: the weighted quadratic is minimised by MM; at an update each robot
-refactorises ``H_α`` (at the current iterate) and ``L_α`` and the acceleration state is
-reset, since the surrogated objective changed). ``inlier_mask``: an edge of a robust kind is an
-inlier when its weight at the final estimate is at least the weight at ``s = c``
-(:func:`robust.flag_threshold`), i.e. when its final ``s ≤ c``; odometry is always an inlier;
-None for the kernel ``none``. When ``problem.outlier_mask`` is given, ``extras`` has
-``precision``/``recall`` of the flagged edges.
-
-**Batched execution** (:class:`TeamSystem`). The robots' subproblems are independent given
-``Xᵏ``, so their Hessians / Laplacians are the diagonal blocks of one block-diagonal matrix over
-all poses (no entry couples two robots; tested): per iteration the whole team takes one
-vectorised pass over the global edge arrays, one factorisation (when ``H`` is refreshed) and
-one solve, which give every robot exactly its own update. Matrices are assembled into a fixed
-CSC pattern (precomputed slots, ``np.bincount``); factorisations use cholespy's sparse Cholesky
-(measured against SuperLU on m3500 / city10k: same factorisation time, 3–4× faster solves;
-CHOLMOD chooses its own fill-reducing ordering, so pre-permuting the matrix — nested dissection,
-reverse Cuthill–McKee — changed neither). Planar quantities are complex numbers (translations
-``x + iy``, rotations ``e^{iθ}``, residuals), so a rotation of a vector is one complex
-multiply; each pose's ``cos θ, sin θ`` is computed once per iterate (:class:`PoseTable`) and
-gathered by its edges (NumPy's float64 cos / sin measured ≈ 19 ns an element here, a complex
-multiply ≈ 0.5 ns). The backtracking of the safeguard is per robot (a failing robot halves
-only its own step).
-
-**Accounting.** One *iteration* = every robot updates once (in parallel). ``wall_s`` = the whole
-run in this process (set-up, initialisation, logging). ``parallel_s`` is a **model** of the
-makespan, since the robots are computed together: the measured time of each batched iteration
-(refactorisations, restart steps, the restart decision and reweighting included) and of the
-set-up factorisations, times the slowest robot's share of the work, work_α = owned poses + local
-edges (an inter edge counts for both robots) — the sizes its vectorised pass and its sparse
-solves scale with. It ignores per-robot fixed (interpreter) overhead and communication latency.
-Initialisation and the final evaluation are not counted in ``parallel_s``. ``messages`` = Σ over
-iterations of the separator poses sent, one per (pose, neighbouring robot) pair.
-``extras["refactorisations"]`` counts the refreshes of ``H`` after the set-up. ``history[k]`` =
-``F_chordal(X_k)`` (``history[0]`` at the start), read off the edge residuals the iteration
-computes anyway (no extra evaluation).
+Where the rest is stated, beside the code that computes it: the node update (one Gauss–Newton
+rotation step on (1), exact translation recovery, safeguard) at :meth:`TeamSystem.plain_step`;
+the Hessian refresh at :meth:`TeamSystem.hessian_drift`; the AMM-PGO extrapolation and restarts
+at :class:`RestartState`; the robust reweighting at :func:`edge_weights`; the batched team system
+at :class:`TeamSystem`; the accounting (``parallel_s``, ``messages``, ``history``) at
+:func:`solve`. The gauge pose (the first vertex of robot 0) is held fixed.
 """
 
 from __future__ import annotations
@@ -353,7 +258,27 @@ class Update(NamedTuple):
 
 @dataclasses.dataclass
 class RestartState:
-    """The team's acceleration / adaptive-restart state (REFERENCES §3.5)."""
+    """The team's acceleration / adaptive-restart state (REFERENCES §3.5).
+
+    **Acceleration** (AMM-PGO, REFERENCES §3.5): ``s_{k+1} = ½ + ½√(4s_k² + 1)``,
+    ``γ_k = (s_k − 1)/s_{k+1}``, ``Y = Xᵏ ⊕ γ_k(Xᵏ ⊖ Xᵏ⁻¹)`` (translations linearly, headings by the
+    wrapped difference; each robot extrapolates its own and its neighbours' poses, which it holds
+    from the last two exchanges), candidate = node update from ``Y`` without the safeguard. With
+    ``F_k = F(Xᵏ)`` and ``G = Σ_α G^α(candidate | Xᵏ) ≥ F(candidate)``: ``F̄₀ ← (1−η₀)F̄₀ + η₀F_k``
+    (η₀ = 5e-4), ``F̄₁ ← max(F_k, (1−η₁)F̄₁ + η₁F_k)`` (η₁ = 2.5e-2); a **hard restart** when
+    ``G > F̄₀``, a **soft restart** when ``G > F̄₁`` and counter₀ ≥ 10, or ``G > F_{k}`` and
+    counter₁ > 25 (counter₀ −2 when ``F_k ≤ F̄₁`` else +1; counter₁ reset when ``F`` decreased else
+    +1). A restart replaces every robot's candidate by its safeguarded plain step from ``Xᵏ``; a
+    hard one also sets ``s ← max(s/2, 1)``; both divide counter₀ by 3 and reset counter₁. The rules
+    are applied to team sums (two scalars all-reduced per iteration, as AMM-PGO* with its master
+    node), not per robot as in AMM-PGO# (the per-robot rule oscillated: docs/mm_pgo.md).
+
+    *Deviation (odometry starts):* after each update ``F̄₀ ← min(F̄₀, F̄₁)``. §3.5 initialises
+    ``F̄₀`` at the first ``F``; with η₀ = 5e-4 it then stays near that ``F`` for thousands of
+    iterations, so from a start orders of magnitude above the optimum (odometry) the hard restart
+    never fired. Capped by the fast average, ``F̄₀`` follows the actual ``F`` down. Measurements and
+    the alternatives not kept: docs/mm_pgo.md.
+    """
 
     s: float = 1.0
     average_slow: float = np.inf  # F̄₀
@@ -473,6 +398,18 @@ class TeamSystem:
     robot exactly its own answer. Edge arrays are global (``M``); an inter edge enters (1)
     twice, once for each endpoint's robot.
 
+    **Batched execution** (:class:`TeamSystem`). The robots' subproblems are independent given
+    ``Xᵏ``, so their Hessians / Laplacians are the diagonal blocks of one block-diagonal matrix over
+    all poses (no entry couples two robots; tested): per iteration the whole team takes one
+    vectorised pass over the global edge arrays, one factorisation (when ``H`` is refreshed) and
+    one solve, which give every robot exactly its own update. Matrices are assembled into a fixed
+    CSC pattern (precomputed slots, ``np.bincount``); factorisations use cholespy's sparse Cholesky
+    (chosen by measurement: docs/mm_pgo.md). Planar quantities are complex numbers (translations
+    ``x + iy``, rotations ``e^{iθ}``, residuals), so a rotation of a vector is one complex
+    multiply; each pose's ``cos θ, sin θ`` is computed once per iterate (:class:`PoseTable`) and
+    gathered by its edges (timings: docs/mm_pgo.md). The backtracking of the safeguard is per robot
+    (a failing robot halves only its own step).
+
     Args:
         graph: the global graph (``graph.robots`` assigned).
         anchor: the gauge vertex (held fixed).
@@ -573,7 +510,17 @@ class TeamSystem:
 
     def hessian_drift(self, terms: EdgeTerms) -> float:
         """The largest :func:`jacobian_drift` over the edges between the geometry ``H`` was
-        factorised at and that of ``terms``."""
+        factorised at and that of ``terms``.
+
+        *Hessian refresh.* ``H`` depends on the iterate only through each intra edge's lever
+        ``J R_pᵀ(t_q − t_p)`` and relative rotation ``R(θ_q − θ_p)``, i.e. through the translation
+        residual's Jacobian ``J_e = [−I, −lever | R(φ), 0]``. Every ``hessian_interval`` (10)
+        iterations the largest relative change ``‖J_e − J_e⁰‖_F / ‖J_e⁰‖_F`` since the last
+        factorisation is measured (O(M)) and ``H`` is refactorised when it exceeds
+        ``hessian_tolerance`` (0.02); ``hessian_tolerance=0`` refactorises every
+        ``hessian_interval`` iterations (the former rule). Measurements behind the 0.02:
+        docs/mm_pgo.md.
+        """
         return float(jacobian_drift(self.geometry(terms), self.hessian_geometry).max())
 
     def factorise_hessian(self, terms: EdgeTerms | None) -> None:
@@ -687,7 +634,28 @@ class TeamSystem:
     def plain_step(self, poses: PoseTable, base: EdgeTerms, shares: np.ndarray) -> Update:
         """Every robot's safeguarded MM step from ``poses`` (edge terms ``base``, robot shares
         of ``F`` ``shares``), with ``G^α(new | poses) ≤ shares[α]``; a robot whose step fails
-        halves its own step."""
+        halves its own step.
+
+        **Node update** (in place of MM-PGO's ``proximal`` + TNT refinement, REFERENCES §3.4).
+        Minimising (1) exactly over ``SE(2)^{n_α}`` is a local PGO; an MM step only needs to
+        *decrease* it. Each robot takes one Gauss–Newton step on (1) and recovers its translations
+        in closed form:
+
+        1. Rotations: ``δ = −H_α⁻¹ g_α``, ``g_α`` the gradient of (1) at the base point
+           (= ``∇_α F``) in body-frame increments (``t_i ← t_i + R_i a_i``, ``θ_i ← θ_i + b_i``),
+           ``H_α`` the Gauss–Newton Hessian of (1) — intra edges at a recent geometry, inter terms
+           (quadratic in linear coordinates) exact — factorised at the start and refactorised when
+           its geometry has drifted (:meth:`hessian_drift`; ``hessian_interval=0``: once, at zero
+           residual, i.e. from the measurements only). Then ``θ_i ← θ_i + b_i`` (the exact
+           retraction onto SO(2)).
+        2. Translations: the exact minimiser of (1) over the robot's translations for the new
+           rotations, a weighted-Laplacian system ``L_α t = b`` (intra ``τ`` Laplacian + ``2τ`` of
+           each inter edge on the diagonal), constant and factorised once (MM-PGO's
+           ``recover_translations``).
+        3. Safeguard (plain MM steps): if (1) did not decrease, the rotation step is halved (up to 3
+           times), then dropped (translation recovery alone cannot increase (1)). Hence **F is
+           non-increasing** for ``accelerated=False`` (the MM descent property; tested).
+        """
         step = self.rotation_step(base)
         scale = np.ones(self.num_robots)
         accepted = np.zeros(self.num_robots, dtype=bool)
@@ -736,7 +704,20 @@ def initial_estimate(graph: PoseGraph, init: str) -> np.ndarray:
 
 
 def edge_weights(graph: PoseGraph, poses: np.ndarray, kernel: str, scale: float) -> np.ndarray:
-    """IRLS weights ``(M,)`` at ``poses``: ``ρ'(F_e)`` on robust kinds, 1 on odometry."""
+    """IRLS weights ``(M,)`` at ``poses``: ``ρ'(F_e)`` on robust kinds, 1 on odometry.
+
+    **Robust kernels** (:mod:`baselines.robust`) on loop-closure and inter-robot edges (kinds LOOP,
+    INTER_RELATIVE, INTER_LOOP; odometry keeps weight 1): IRLS weights ``w_e = ρ'(s_e)`` of the
+    unweighted chordal cost ``s_e = F_e`` multiply ``κ_e, τ_e``. They are recomputed from the
+    current iterate before the first iteration and every ``weight_interval`` (20) iterations
+    (static between updates: the weighted quadratic is minimised by MM; at an update each robot
+    refactorises ``H_α`` (at the current iterate) and ``L_α`` and the acceleration state is
+    reset, since the surrogated objective changed). ``inlier_mask``: an edge of a robust kind is an
+    inlier when its weight at the final estimate is at least the weight at ``s = c``
+    (:func:`robust.flag_threshold`), i.e. when its final ``s ≤ c``; odometry is always an inlier;
+    None for the kernel ``none``. When ``problem.outlier_mask`` is given, ``extras`` has
+    ``precision``/``recall`` of the flagged edges.
+    """
     kappa, tau = objective.weights(graph.information)
     terms = edge_terms(poses, edge_data(graph.tails, graph.heads, graph.measurements))
     robust_edge = np.isin(graph.kinds, np.array(ROBUST_KINDS, dtype=np.int8))
@@ -770,9 +751,23 @@ def solve(
         hessian_interval: iterations between checks of ``H_α``'s drift (refactorised at the
             current iterate when it exceeds ``hessian_tolerance``); 0 keeps the zero-residual
             ``H_α`` throughout.
-        hessian_tolerance: the largest relative change of an edge's Jacobian (see the module
-            docstring) tolerated before ``H_α`` is refactorised; 0: at every check.
+        hessian_tolerance: the largest relative change of an edge's Jacobian (see
+            :meth:`TeamSystem.hessian_drift`) tolerated before ``H_α`` is refactorised; 0: at every
+            check.
         seed: unused (the method is deterministic); accepted for the common interface.
+
+    **Accounting.** One *iteration* = every robot updates once (in parallel). ``wall_s`` = the whole
+    run in this process (set-up, initialisation, logging). ``parallel_s`` is a **model** of the
+    makespan, since the robots are computed together: the measured time of each batched iteration
+    (refactorisations, restart steps, the restart decision and reweighting included) and of the
+    set-up factorisations, times the slowest robot's share of the work, work_α = owned poses + local
+    edges (an inter edge counts for both robots) — the sizes its vectorised pass and its sparse
+    solves scale with. It ignores per-robot fixed (interpreter) overhead and communication latency.
+    Initialisation and the final evaluation are not counted in ``parallel_s``. ``messages`` = Σ over
+    iterations of the separator poses sent, one per (pose, neighbouring robot) pair.
+    ``extras["refactorisations"]`` counts the refreshes of ``H`` after the set-up. ``history[k]`` =
+    ``F_chordal(X_k)`` (``history[0]`` at the start), read off the edge residuals the iteration
+    computes anyway (no extra evaluation).
     """
     del seed
     start = time.perf_counter()
