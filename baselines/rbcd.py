@@ -1,7 +1,8 @@
 """Riemannian block-coordinate descent (RBCD / RBCD++) on the rank-r Burer–Monteiro relaxation.
 
 The shared core of ``cc-pgo`` (Tian et al., dpgo) and ``ml-pgo`` (Li et al. 2024); see
-REFERENCES.md §2 and §4.
+REFERENCES.md §2 and §4. Measurements (speed, rounding) and the variants tried and not kept:
+docs/rbcd.md.
 
 **Relaxation** (d = 2). Pose ``i`` is lifted to ``X_i = [Y_i p_i] ∈ R^{r×3}`` with
 ``Y_i ∈ St(2, r)`` (``Y_iᵀY_i = I``) and ``p_i ∈ R^r``. Arrays here hold the transpose: ``X`` is
@@ -24,76 +25,11 @@ dpgo's greedy robot selection) or round-robin. With one robot per class this is 
 greedy RBCD; with more, it is the parallel (Jacobi over an independent set) count, comparable to
 MM-PGO where every robot updates each iteration.
 
-**Local update** (dpgo ``PGOAgent::updateX``): with neighbours fixed, robot α minimises
-``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` over ``(St(2, r) × R^r)^{n_α}`` by Riemannian
-trust-region Newton steps with truncated (Steihaug–Toint) CG, preconditioned by a cached sparse
-Cholesky factor of ``Q_αα + λI`` (dpgo's preconditioner); by default one accepted step with ≤ 10
-tCG iterations (dpgo: 3 steps, ≤ 50; see :class:`LocalOptions`). The linear term ``G_α`` only
-needs the neighbours' separator poses, and is never formed: the update starts from the gradient
-``∇f_α(Z) = (QY)_α`` the round already has, and a candidate step ``Δ`` is judged by
-``f_α(Z + Δ) − f_α(Z) = ⟨Δ, ∇f_α(Z)⟩ + ½⟨Δ, Q_αα Δ⟩`` from one sparse product with the class's
-columns of ``Q`` (which also gives the change of the neighbours' ``QX``), so a robot update costs
-its tCG iterations (one Hessian product and one preconditioner solve each, none after the last)
-plus one product per trust-region step. **Batched:** the robots of a class share no edge, so their
-problems are independent and are solved together as one block-diagonal problem (one ``Q_cc``
-product and one Cholesky solve of the class per tCG iteration), with every scalar of the
-trust-region / tCG iteration (radius, step, curvature, acceptance, stopping) kept per robot, so
-each robot follows exactly the iteration it would run alone (up to floating-point summation
-order). Only robots with fewer than ``BATCH_BELOW_POSES`` (300) poses are batched; larger ones,
-whose arrays are big enough to hide the per-call overhead, update one by one
-(:func:`batch_groups`).
-
-**Acceleration** (RBCD++, REFERENCES §2.4), with ``B`` blocks (colour classes):
-``γ ← (1 + √(1 + 4B²γ²)) / (2B)``, ``α ← 1/(γB)``, ``Y ← Proj((1−α)X + αV)``, the selected block
-``X_b ← LocalOpt(Y)`` (others ``X ← Y``), ``V ← Proj(V + γ(X − Y))``. Restart ("fixed", cc-pgo):
-every ``restart_interval`` (30) iterations a plain update from ``X`` and ``V = X``, ``γ = 0``;
-("adaptive", ml-pgo, §4.1): whenever the objective increases by more than a relative
-``ADAPTIVE_RESTART_TOLERANCE`` (1e-9 of ``f``), the iteration is redone as a plain update from
-``X`` and the momentum reset. The tolerance ignores increases at the level of the floating-point
-error of ``f`` near convergence: without it, ml-pgo on mit with 35 robots restarted 707 times in
-1000 rounds (3 times with it), for the same final cost.
-
-**Speed** (benchmarks/bench_rbcd.py; profiled with cProfile on m3500 and city10k, 7 robots).
-The time is in the tCG iterations: a Hessian product, a Cholesky solve (each ~50–800 µs on a
-robot of 500–1400 poses, near their arithmetic cost) and about 100 NumPy calls on
-``(n_α, 3, r)`` arrays per iteration, whose per-call overhead is as large as the sparse work at
-these sizes. Removing the redundant products (the linear term, the start's cost and gradient,
-the last tCG solve) saved ~8 % of the CPU time; measured and not kept, for no gain or a loss: a
-pose-innermost ``(r, 3, N)`` layout (equal CPU time: the transposes the sparse kernels need
-cancel the faster projections), ``einsum`` for the 2×2 blocks (2× slower at these sizes),
-batching the large robots (slower: a batch runs until its slowest robot stops), selecting the
-class at ``X`` instead of ``Y`` (same convergence). Fewer tCG iterations are cheaper per round
-but not per unit of progress (m3500, 7 robots, rounds to 1e-3 with the adaptive / fixed restart:
-58 / 115 with ≤ 10, 91 / 219 with ≤ 5, 161 / >300 with ≤ 3), so the default stays. 1000 rounds
-on m3500 and city10k stay well above 10× GTSAM Levenberg–Marquardt's time. The time spent
-inside the compiled sparse kernels alone (products and Cholesky solves; n = 7, chordal start,
-one run) is 15× (ml-pgo) and 30× (cc-pgo) on m3500, above the target by itself, and 4.8× and
-9.5× on city10k (bench_rbcd.py prints both ratios).
-
-**Rounding** (:func:`round_solution`). By default SE-Sync's: project every ``X_i`` onto the
-top-2 eigenvectors ``U`` of ``Σ_i Y_i Y_iᵀ`` (``r × r``, summed over robots, so one small message
-per robot), with the reflection fixed by a determinant vote, then each ``Y_iᵀ U`` to its nearest
-rotation. dpgo's anchor rounding (``U = Y_a``, REFERENCES §2.8) is ``rounding="anchor"``. The two
-agree at a rank-2 iterate (every converged run here), but not at an unconverged one: after 1000
-rounds from the odometry start (n = 7, METIS) the rank-5 iterates still have σ₃/σ₁ = 0.1–0.7 on
-mit (cc-pgo), m3500, m3500b/c and city10k (cc-pgo), with a relaxed ``2f`` close to the optimum
-(m3500: 281 cc-pgo / 198 ml-pgo against 193.86) yet far worse rounded poses. F_chordal of the
-rounded poses, anchor → SVD: mit cc-pgo 352 → 97.5; m3500 cc-pgo 97,385 → 23,108, ml-pgo 2,245
-→ 1,546; m3500b cc-pgo 224,503 → 115,333, ml-pgo 158,490 → 182,612 (the one cell where it is
-worse); m3500c 86,078 / 80,954 → 56,264 / 60,350; city10k cc-pgo 1,022 → 704; equal to print
-precision on intel, csail, grid1000, mit/city10k ml-pgo (measured 2026-12-01).
-
-**Accounting.** ``parallel_s`` = Σ over rounds of (the slowest updating robot's local update time
-+ the round's vectorised bookkeeping — extrapolation, gradient norms, objective — divided by the
-number of robots, as each robot would do its share). A robot's local update time is modelled
-from the batched update: a robot updating alone keeps its measured time; a batch's measured
-time is split among its robots in proportion to their work
-``nnz(Q_αα) × (Hessian–vector products + 1)`` (:func:`robot_shares`).
-``messages`` = Σ over rounds of the separator poses (poses with an edge to another robot) of
-every robot whose estimate changed that round (all robots in an accelerated round, the updated
-class in a plain one). ``history[k]`` = ``2 f(X_k)``, the relaxation's F_chordal after round
-``k`` (``history[0]`` at the start); the rounded estimate's F / F_chordal are evaluated once,
-at the end.
+Where the rest is stated, beside the code that computes it: the local update (trust-region
+Newton with tCG, batched per colour class) at :func:`local_update` and :func:`batch_groups`; the
+RBCD++ acceleration (γ, α, ``Y``, ``V``) and the restarts, and the accounting
+(``parallel_s``, ``messages``, ``history``), at :func:`run_rbcd`; the rounding at
+:func:`round_solution` / :func:`rounding_basis`.
 """
 
 from __future__ import annotations
@@ -307,6 +243,13 @@ def round_solution(
     nearest rotation, ``θ = atan2(M₀₁ − M₁₀, M₀₀ + M₁₁)`` for ``M = Y_iᵀ U``, which is the SVD
     projection with the determinant fix) and ``t_i = Uᵀ p_i``; the result is expressed so that
     the anchor sits at ``anchor_pose`` ``(3,)`` (the gauge).
+
+    **Rounding** (:func:`round_solution`). By default SE-Sync's: project every ``X_i`` onto the
+    top-2 eigenvectors ``U`` of ``Σ_i Y_i Y_iᵀ`` (``r × r``, summed over robots, so one small
+    message per robot), with the reflection fixed by a determinant vote, then each ``Y_iᵀ U`` to its
+    nearest rotation. dpgo's anchor rounding (``U = Y_a``, REFERENCES §2.8) is
+    ``rounding="anchor"``. The two agree at a rank-2 iterate (every converged run here), but not at
+    an unconverged one (measured: docs/rbcd.md).
     """
     basis = rounding_basis(x, anchor, rounding)
     m = x[:, :2] @ basis  # (N, 2, 2) = R_iᵀ up to the projection
@@ -454,7 +397,17 @@ def batch_groups(members: np.ndarray, sizes: np.ndarray, batch_below: int) -> li
     tCG iterations on the whole batch's arrays; measured on m3500 (300 rounds, same machine):
     7 robots of ~500 poses ran 10 % faster one by one, 35 robots of ~100 poses 25 % faster
     batched; on city10k 35 robots of ~285 poses ran as fast either way. The results agree up to
-    floating-point summation order."""
+    floating-point summation order.
+
+    **Batched:** the robots of a class share no edge, so their
+    problems are independent and are solved together as one block-diagonal problem (one ``Q_cc``
+    product and one Cholesky solve of the class per tCG iteration), with every scalar of the
+    trust-region / tCG iteration (radius, step, curvature, acceptance, stopping) kept per robot, so
+    each robot follows exactly the iteration it would run alone (up to floating-point summation
+    order). Only robots with fewer than ``BATCH_BELOW_POSES`` (300) poses are batched; larger ones,
+    whose arrays are big enough to hide the per-call overhead, update one by one
+    (:func:`batch_groups`).
+    """
     small = sizes[members] < batch_below
     alone = [members[[i]] for i in np.flatnonzero(~small)]
     return alone + ([members[small]] if small.any() else [])
@@ -604,6 +557,18 @@ def local_update(
     class's rows of ``QY``), ``(n_c, 3, r)``; vectorised over the class with per-robot trust
     regions, acceptance and stopping (the robots are independent).
 
+    **Local update** (dpgo ``PGOAgent::updateX``): with neighbours fixed, robot α minimises
+    ``f_α(Z) = ½⟨Z, Q_αα Z⟩ + ⟨Z, G_α⟩`` over ``(St(2, r) × R^r)^{n_α}`` by Riemannian
+    trust-region Newton steps with truncated (Steihaug–Toint) CG, preconditioned by a cached sparse
+    Cholesky factor of ``Q_αα + λI`` (dpgo's preconditioner); by default one accepted step with ≤ 10
+    tCG iterations (dpgo: 3 steps, ≤ 50; see :class:`LocalOptions`). The linear term ``G_α`` only
+    needs the neighbours' separator poses, and is never formed: the update starts from the gradient
+    ``∇f_α(Z) = (QY)_α`` the round already has, and a candidate step ``Δ`` is judged by
+    ``f_α(Z + Δ) − f_α(Z) = ⟨Δ, ∇f_α(Z)⟩ + ½⟨Δ, Q_αα Δ⟩`` from one sparse product with the class's
+    columns of ``Q`` (which also gives the change of the neighbours' ``QX``), so a robot update
+    costs its tCG iterations (one Hessian product and one preconditioner solve each, none after the
+    last) plus one product per trust-region step.
+
     Costs are tracked relative to ``f_α(z)``: a step ``Δ`` costs
     ``f_α(Z + Δ) − f_α(Z) = ⟨Δ, ∇f_α(Z)⟩ + ½⟨Δ, Q_αα Δ⟩`` and moves the gradient by ``Q_αα Δ``,
     so each candidate needs one sparse product, ``reach · Δ``, whose own rows are ``Q_αα Δ`` and
@@ -748,7 +713,8 @@ class _Rounds:
     """One block round: select a colour class at ``Y`` and update its robots in parallel.
 
     ``batches[c]`` holds colour class ``c``'s robots as :class:`ClassBlock` s: one block of all
-    of them (``RBCDOptions.batch``) or one per robot."""
+    of them (robots below ``RBCDOptions.batch_below`` poses, :func:`batch_groups`) or one per
+    robot."""
 
     def __init__(self, batches: list[list[ClassBlock]], options: RBCDOptions) -> None:
         self.batches, self.options = batches, options
@@ -800,7 +766,29 @@ def run_rbcd(
     options: RBCDOptions,
 ) -> RBCDRun:
     """RBCD / RBCD++ from ``x0`` ``(N, 3, r)`` for ``budget.iterations`` rounds (or until
-    ``budget.seconds``); see the module docstring for the round, restarts and accounting."""
+    ``budget.seconds``); one round as in the module docstring (one colour class updates).
+
+    **Acceleration** (RBCD++, REFERENCES §2.4), with ``B`` blocks (colour classes):
+    ``γ ← (1 + √(1 + 4B²γ²)) / (2B)``, ``α ← 1/(γB)``, ``Y ← Proj((1−α)X + αV)``, the selected block
+    ``X_b ← LocalOpt(Y)`` (others ``X ← Y``), ``V ← Proj(V + γ(X − Y))``. Restart ("fixed", cc-pgo):
+    every ``restart_interval`` (30) iterations a plain update from ``X`` and ``V = X``, ``γ = 0``;
+    ("adaptive", ml-pgo, §4.1): whenever the objective increases by more than a relative
+    ``ADAPTIVE_RESTART_TOLERANCE`` (1e-9 of ``f``), the iteration is redone as a plain update from
+    ``X`` and the momentum reset. The tolerance ignores increases at the level of the floating-point
+    error of ``f`` near convergence (measured: docs/rbcd.md).
+
+    **Accounting.** ``parallel_s`` = Σ over rounds of (the slowest updating robot's local update
+    time + the round's vectorised bookkeeping — extrapolation, gradient norms, objective — divided
+    by the number of robots, as each robot would do its share). A robot's local update time is
+    modelled from the batched update: a robot updating alone keeps its measured time; a batch's
+    measured time is split among its robots in proportion to their work
+    ``nnz(Q_αα) × (Hessian–vector products + 1)`` (:func:`robot_shares`).
+    ``messages`` = Σ over rounds of the separator poses (poses with an edge to another robot) of
+    every robot whose estimate changed that round (all robots in an accelerated round, the updated
+    class in a plain one). ``history[k]`` = ``2 f(X_k)``, the relaxation's F_chordal after round
+    ``k`` (``history[0]`` at the start); the rounded estimate's F / F_chordal are evaluated once,
+    at the end.
+    """
     start = time.perf_counter()
     rounds = _Rounds(batches, options)
     num_blocks = len(batches)
@@ -820,10 +808,10 @@ def run_rbcd(
         if plain:
             update = rounds.update(x, q_x, iteration)
             messages += update.separators
-        else:  # RBCD++ (§2.4)
+        else:  # RBCD++ (§2.4): γ ← (1 + √(1 + 4B²γ²)) / (2B), α ← 1/(γB), B = num_blocks
             gamma = (1.0 + np.sqrt(1.0 + 4.0 * num_blocks**2 * gamma**2)) / (2.0 * num_blocks)
             alpha = 1.0 / (gamma * num_blocks)
-            y = project_manifold((1.0 - alpha) * x + alpha * v)
+            y = project_manifold((1.0 - alpha) * x + alpha * v)  # Y ← Proj((1−α)X + αV)
             update = rounds.update(y, apply_q(q, y), iteration)
             moved = update.poses  # elsewhere X_new = Y, so V (on the manifold) keeps its value
             v = v.copy()
