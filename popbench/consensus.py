@@ -1,5 +1,5 @@
 """Information-weighted ADMM consensus over separator poses (paper §III-D, after Fung et al. 2019;
-REFERENCES.md §8).
+REFERENCES.md §8). Measurements and the variants tried and not kept: docs/consensus.md.
 
 Every robot ``i`` holds local copies ``x^i`` of its local vertices (owned poses and separator
 copies, :class:`popbench.distributed.LocalGraph`). A separator ``s`` has one copy per local graph
@@ -25,47 +25,20 @@ it belongs to; ADMM drives the copies to a consensus value ``z_s``:
 * stop when the copies agree: primal residual ``max_{s,i} ‖x_s^i ⊖ z_s‖_∞ < tol`` (m and rad
   alike). The dual residual ``max_s ‖z_s^{k+1} ⊖ z_s^k‖_∞`` is recorded, not used to stop:
   consensus reconciles the robots' estimates; it is not run to global optimality (ADMM's tail is
-  slow — on a 7×60 synthetic problem the dual residual still shrinks by only ~0.2 % per
-  iteration after 300 iterations); Prop-V2's LM refinement does that. From an odometry start
-  it often does not reach agreement within the 200-iteration cap at all (7×60 held-out V2
-  problems and city10k at n = 7: final primal residual e.g. 1.4 and 1.8 on two held-out
-  problems, 0.44 on city10k), and there the output is very
-  sensitive to round-off: solving the x-update systems only to a relative residual of 1e-6
-  changed F after consensus on one held-out problem from 3066 to 10710 (measured). The
-  x-update systems are therefore solved directly (exact up to round-off).
+  slow); Prop-V2's LM refinement does that. From an odometry start it often does not reach
+  agreement within the 200-iteration cap, and there the output is very sensitive to round-off,
+  so the x-update systems are solved directly (exact up to round-off). Measurements:
+  docs/consensus.md.
 
 ``ρ`` is dimensionless: it scales the copies' own information, so ``ρ = 1`` makes the consensus
-penalty on a copy as stiff as the robot's own edges on that pose. Default ``ρ = 3``: of
-``ρ ∈ {1, 3, 10, 30}`` it reached agreement (residuals < 1e-3) in the fewest iterations on
-synthetic V2 problems (3×30 and 7×60 poses, copies = optimum + N(0, 0.05²) noise); one damped
-Gauss–Newton step per x-update converged as fast as three.
+penalty on a copy as stiff as the robot's own edges on that pose. Default ``ρ = 3`` and one
+damped Gauss–Newton step per x-update (how they were chosen: docs/consensus.md).
 
 Messages: per iteration each non-owner copy sends ``x_s^i + u_s^i`` to the owner of ``s`` and
 receives ``z_s`` back — two pose messages per non-owner copy.
 
-Batched execution. The robots' x-updates are independent given ``z`` and ``u``, so they run
-together: the half-weighted local graphs are stacked into one disjoint *team* graph (robot by
-robot, each in ``local_vertices(r)`` order), and per Gauss–Newton step one vectorised pass over
-the team's edges gives every robot's residuals, Jacobian blocks, gradient and objective
-(``np.bincount`` by robot). The team's normal equations are block diagonal (no entry couples
-two robots; tested), assembled into a CSC pattern fixed once (per-edge 3×3 blocks scattered to
-precomputed slots), with each robot's unknowns contiguous and in a METIS nested-dissection
-order of its local graph. Each robot still pending a step gets its own block (a CSC slice)
-factorised by SuperLU in that order with diagonal pivots — on city10k at n = 7 ≈ 3× faster
-than SuperLU's default column order (measured), so each robot's damping and step acceptance
-stay its own. Measured and not kept: one factorisation of the whole block-diagonal matrix
-(SuperLU: about the seven blocks' time together, but every robot refactorised whenever one
-retries a step; cholespy: 5–10× slower), and reusing an earlier
-factorisation as the preconditioner of conjugate gradients (to a relative residual 1e-10):
-the Gauss–Newton Hessian in world-frame increments moves with every heading, so on city10k
-from the odometry start 97 % of the solves still needed a refactorisation within 3 CG
-iterations (with up to 8 and one whole-team factor: 489 refactorisations in 200
-iterations), slower than factorising directly.
-
-Accounting. ``parallel_s`` models the makespan: per ADMM iteration, the slowest robot's
-measured factorise-and-solve time plus the x-update's shared vectorised time times the largest
-robot's share of the work (local vertices + local edges). The z- and dual updates (cheap, done
-by the separators' owners) are not counted.
+Batched execution (all robots' x-updates as one block-diagonal team system): see
+:class:`_TeamSystem`. Accounting (``parallel_s``): see :func:`admm_consensus`.
 """
 
 from __future__ import annotations
@@ -269,6 +242,18 @@ class _TeamSystem:
     edge couples two robots' rows — so each robot's block is its own system. Per edge the four
     3×3 blocks ``(p,p), (p,q), (q,p), (q,q)`` and per copy its 3×3 penalty block go to
     precomputed CSC slots (``np.bincount``); entries of the gauge row go to one discarded slot.
+
+    Batched execution. The robots' x-updates are independent given ``z`` and ``u``, so they run
+    together: the half-weighted local graphs are stacked into one disjoint *team* graph (robot by
+    robot, each in ``local_vertices(r)`` order), and per Gauss–Newton step one vectorised pass over
+    the team's edges gives every robot's residuals, Jacobian blocks, gradient and objective
+    (``np.bincount`` by robot). The team's normal equations are block diagonal (no entry couples
+    two robots; tested), assembled into a CSC pattern fixed once (per-edge 3×3 blocks scattered to
+    precomputed slots), with each robot's unknowns contiguous and in a METIS nested-dissection
+    order of its local graph. Each robot still pending a step gets its own block (a CSC slice)
+    factorised by SuperLU in that order with diagonal pivots — on city10k at n = 7 ≈ 3× faster
+    than SuperLU's default column order (measured), so each robot's damping and step acceptance
+    stay its own. Timings and the variants not kept: docs/consensus.md.
     """
 
     def __init__(self, team: _Team) -> None:
@@ -466,6 +451,11 @@ def admm_consensus(
     local_steps: int = 1,
 ) -> ConsensusOutcome:
     """Reconcile the robots' separator copies by information-weighted ADMM (module docstring).
+
+    Accounting. ``parallel_s`` models the makespan: per ADMM iteration, the slowest robot's
+    measured factorise-and-solve time plus the x-update's shared vectorised time times the largest
+    robot's share of the work (local vertices + local edges). The z- and dual updates (cheap, done
+    by the separators' owners) are not counted.
 
     Args:
         problem: the distributed problem.
