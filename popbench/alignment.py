@@ -16,18 +16,8 @@ increases. Jacobians by the chain rule through ``y = T ∘ x``: ``∂y_t/∂t_T 
 ``∂y_t/∂θ_T = J (y_t − t_T)``, ``∂y_θ/∂θ_T = 1`` (``J = R(π/2)``), times the edge Jacobians of
 :func:`popbench.objective.linearise`.
 
-Measured (benchmarks/eval_prop.py; agents/checkpoints/README.md has the tables). On 100 held-out
-V2 problems at n = 7 (seeds 3,000,000+, odometry start) aligning before the ADMM lowered the
-median F after the consensus from 2,274 to 449 with no local refinement, and from 1,793 to 242
-with every robot's local graph at its own optimum (the ground truth scores ~200); the mean ATE
-fell from ~5.4 m to ~3.4 m (2.5 m at the local optima). Without it even perfect local maps
-ended barely better than none, so a local policy could not pay off. On the Table I datasets at
-n = 7 from odometry, where the maps themselves are drifted and the ADMM does not converge either
-way, prop-v1's F after the consensus moved by −4 % (grid1000) to +77 % (city10k), worse on 7 of
-8 — so prop-v1 uses it only when asked (``align_frames=True``); the paper has no such step.
-
-Cost: a dense ``3(n − 1)`` system per step; 19–75 ms in all on m3500 and city10k at n = 7 and
-35 from odometry (6–50 steps; measured 2026-12-01), against seconds for the ADMM.
+Cost: a dense ``3(n − 1)`` system per step, against seconds for the ADMM. Measurements (effect
+on F and ATE, where it is used, timings): docs/alignment.md.
 
 Messages (a model, for the reports): the owners send the gauge robot the poses at their
 inter-robot edges (one message per separator), and it sends every other robot its frame
