@@ -57,12 +57,10 @@ from popbench import objective
 from popbench.alignment import align_frames as align_robot_frames
 from popbench.consensus import admm_consensus
 from popbench.distributed import DistributedProblem
-from popbench.errors import ValueRangeError
 from popbench.methods import Budget, Result
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "actor-V2-n7.pt"
-INITS = ("problem", "given", "odometry", "chordal")
 PROP_V2_LM_ITERATIONS = 75
 
 
@@ -90,23 +88,6 @@ def cached_actor(path: str, device: str) -> HybridActor:
     """The actor of a checkpoint file, loaded once per process."""
     actor, _ = load_actor(path, device)
     return actor
-
-
-def starting_problem(problem: DistributedProblem, init: str) -> DistributedProblem:
-    """`problem` whose graph holds the `init` estimate ("problem"/"given": its own poses)."""
-    if init not in INITS:
-        raise ValueRangeError("init", init, ", ".join(INITS))
-    if init in ("problem", "given"):
-        return problem
-    graph = problem.graph
-    if init == "odometry":
-        poses = graph.odometry_initial()
-    else:
-        from popbench.solvers.chordal import chordal_initialisation
-
-        poses = chordal_initialisation(graph)
-    graph = dataclasses.replace(graph, poses=np.asarray(poses, dtype=np.float64))
-    return DistributedProblem(graph, problem.initial, problem.outlier_mask)
 
 
 def moved_vertices(core, heads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -200,7 +181,6 @@ def run_episode(
 def solve_prop_v1(
     problem: DistributedProblem,
     budget: Budget | None = None,
-    init: str = "problem",
     seed: int = 0,
     checkpoint: str | Path | None = None,
     device: str = "cpu",
@@ -211,9 +191,9 @@ def solve_prop_v1(
     """prop-v1: replicated trained actors on every local graph, then ADMM consensus.
 
     Args:
-        problem: the distributed problem (any number of robots).
+        problem: the distributed problem (any number of robots); the episode starts from its
+            start, problem.graph.poses.
         budget: see the module docstring (only `seconds` is used).
-        init: "problem"/"given" (problem.graph.poses), "odometry" or "chordal".
         seed: seeds torch (inference is deterministic; kept for the interface).
         checkpoint: actor checkpoint (default: agents/checkpoints/actor-V2-n7.pt).
         device: torch device of the actor ("cpu").
@@ -224,7 +204,6 @@ def solve_prop_v1(
     budget = budget or Budget()
     started = time.perf_counter()
     torch.manual_seed(seed)
-    problem = starting_problem(problem, init)
     actor = cached_actor(str(checkpoint or DEFAULT_CHECKPOINT), device)
     with torch.no_grad():
         episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done)
@@ -274,7 +253,6 @@ def solve_prop_v1(
 def solve_prop_v2(
     problem: DistributedProblem,
     budget: Budget | None = None,
-    init: str = "problem",
     seed: int = 0,
     checkpoint: str | Path | None = None,
     device: str = "cpu",
@@ -284,7 +262,7 @@ def solve_prop_v2(
     """prop-v2: prop-v1, then `lm_iterations` (75) Levenberg–Marquardt iterations."""
     from popbench.solvers.lm import solve_graph
 
-    first = solve_prop_v1(problem, budget, init, seed, checkpoint, device, **options)
+    first = solve_prop_v1(problem, budget, seed, checkpoint, device, **options)
     started = time.perf_counter()
     refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations)
     lm_s = time.perf_counter() - started

@@ -1,7 +1,8 @@
 """CC-PGO: distributed certifiably-correct PGO by RBCD++ (Tian et al., mit-acl/dpgo).
 
-Rank-``r`` Burer–Monteiro relaxation (``r = 5``), centralised chordal initialisation lifted by a
-seeded random ``St(2, r)`` matrix, Nesterov-accelerated Riemannian block-coordinate descent with a
+Rank-``r`` Burer–Monteiro relaxation (``r = 5``), the problem's start (dpgo's example uses the
+centralised chordal initialisation: ``--init chordal``) lifted by a seeded random ``St(2, r)``
+matrix, Nesterov-accelerated Riemannian block-coordinate descent with a
 **fixed restart every 30 iterations**, greedy block selection and rounding to SE(2) (REFERENCES
 §2; SE-Sync's SVD rounding by default, dpgo's anchor rounding with ``rounding="anchor"``, see
 :mod:`baselines.rbcd`). The blocks are the problem's own vertex → robot assignment
@@ -31,7 +32,6 @@ from popbench.methods import Budget, Result
 def solve(
     problem: DistributedProblem,
     budget: Budget | None = None,
-    init: str = "chordal",
     rank: int = 5,
     certify: bool = False,
     seed: int = 0,
@@ -47,7 +47,6 @@ def solve(
     Args:
         problem: the graph and its robot assignment (the blocks).
         budget: iterations (default 1000) and an optional wall-clock cap.
-        init: ``"chordal"`` (default), ``"odometry"`` or ``"problem"`` (``graph.poses``).
         rank: relaxation rank ``r``.
         certify: report ``λ_min`` of the optimality certificate in ``extras``.
         seed: seeds the lifting matrix.
@@ -67,4 +66,4 @@ def solve(
         local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
         rounding=rounding,
     )
-    return solve_rbcd(graph, robots, budget or Budget(), options, init, rank, certify, seed)
+    return solve_rbcd(graph, robots, budget or Budget(), options, rank, certify, seed)

@@ -6,7 +6,7 @@ METIS via :func:`popbench.partition.partition`) giving balanced parts with few c
 an accelerated RBCD whose momentum restarts **adaptively, whenever the objective increases**
 (REFERENCES §4.1; by more than a relative 1e-9, ``rbcd.ADAPTIVE_RESTART_TOLERANCE``, so that
 floating-point noise near convergence does not reset the momentum), instead of every 30
-iterations. Everything else (relaxation, rank 5, chordal initialisation, local trust-region
+iterations. Everything else (relaxation, rank 5, lifting the problem's start, local trust-region
 updates, rounding) is shared with CC-PGO in :mod:`baselines.rbcd`.
 
 The problem's assignment: by default (``repartition=True``) ML-PGO re-partitions the graph with
@@ -27,7 +27,6 @@ from popbench.partition import partition
 def solve(
     problem: DistributedProblem,
     budget: Budget | None = None,
-    init: str = "chordal",
     rank: int = 5,
     certify: bool = False,
     seed: int = 0,
@@ -43,7 +42,6 @@ def solve(
     Args:
         problem: the graph; its number of robots sets ``n``.
         budget: iterations (default 1000) and an optional wall-clock cap.
-        init: ``"chordal"`` (default), ``"odometry"`` or ``"problem"`` (``graph.poses``).
         rank: relaxation rank ``r``.
         certify: report ``λ_min`` of the optimality certificate in ``extras``.
         seed: seeds the METIS partition and the lifting matrix.
@@ -66,4 +64,4 @@ def solve(
         local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
         rounding=rounding,
     )
-    return solve_rbcd(graph, robots, budget or Budget(), options, init, rank, certify, seed)
+    return solve_rbcd(graph, robots, budget or Budget(), options, rank, certify, seed)

@@ -47,10 +47,8 @@ from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
 from popbench.methods import Budget, Result
 from popbench.outliers import precision_recall
-from popbench.solvers.chordal import chordal_initialisation
 
 ROBUST_KINDS = (EdgeKind.LOOP, EdgeKind.INTER_RELATIVE, EdgeKind.INTER_LOOP)
-INITS = ("problem", "given", "odometry", "chordal")
 
 # Adaptive restart of AMM-PGO (REFERENCES §3.5).
 ETA_SLOW, ETA_FAST = 5e-4, 2.5e-2
@@ -690,19 +688,6 @@ class TeamSystem:
 # ----- the method ----------------------------------------------------------------------------
 
 
-def initial_estimate(graph: PoseGraph, init: str) -> np.ndarray:
-    """``(N, 3)`` starting poses: ``"problem"`` (alias ``"given"``: ``graph.poses`` as given),
-    ``"chordal"`` (chordal relaxation + translation recovery) or ``"odometry"`` (odometry
-    composition)."""
-    if init in ("problem", "given"):
-        return graph.poses.copy()
-    if init == "chordal":
-        return chordal_initialisation(graph)
-    if init == "odometry":
-        return graph.odometry_initial()
-    raise ValueRangeError("init", init, ", ".join(INITS))
-
-
 def edge_weights(graph: PoseGraph, poses: np.ndarray, kernel: str, scale: float) -> np.ndarray:
     """IRLS weights ``(M,)`` at ``poses``: ``ρ'(F_e)`` on robust kinds, 1 on odometry.
 
@@ -727,7 +712,6 @@ def edge_weights(graph: PoseGraph, poses: np.ndarray, kernel: str, scale: float)
 def solve(
     problem: DistributedProblem,
     budget: Budget | None = None,
-    init: str = "chordal",
     kernel: str = "none",
     kernel_scale: float = robust.DEFAULT_SCALE,
     accelerated: bool = True,
@@ -740,10 +724,9 @@ def solve(
     """Run (A)MM-PGO on ``problem`` (see the module docstring).
 
     Args:
-        problem: the multi-robot problem (``graph.robots`` = the robots' vertex sets).
+        problem: the multi-robot problem (``graph.robots`` = the robots' vertex sets); the
+            iterations start from its start, ``graph.poses``.
         budget: iterations (default 1000) and optional wall-clock seconds.
-        init: ``"problem"`` (``problem.graph.poses``; alias ``"given"``), ``"chordal"`` or
-            ``"odometry"``.
         kernel: ``"none"``, ``"huber"``, ``"gm"`` or ``"welsch"``.
         kernel_scale: ``c`` in units of the whitened squared residual (default χ²₃ 0.99).
         accelerated: Nesterov acceleration with adaptive restart (AMM-PGO) or plain MM-PGO.
@@ -780,7 +763,7 @@ def solve(
             "c > 0, interval ≥ 1, interval ≥ 0, tolerance ≥ 0",
         )
     graph = problem.graph
-    poses = pose_table(initial_estimate(graph, init))
+    poses = pose_table(graph.poses.copy())
     kappa, tau = objective.weights(graph.information)
     anchor = int(np.flatnonzero(graph.robots == 0)[0])
     tic = time.perf_counter()
@@ -843,7 +826,7 @@ def solve(
     costs = objective.evaluate(graph, poses)
     history.append(costs.F_chordal)
     extras: dict[str, object] = {
-        "init": init,
+        "init": problem.start,
         "kernel": kernel,
         "kernel_scale": kernel_scale,
         "accelerated": accelerated,

@@ -840,29 +840,12 @@ def run_rbcd(
 
 # ----- the method: initialise, iterate, round, report --------------------------------------------
 
-INITIALISATIONS = ("chordal", "odometry", "problem")
-
-
-def initial_poses(graph: PoseGraph, init: str) -> np.ndarray:
-    """The starting estimate ``(N, 3)``: ``"chordal"`` (centralised chordal initialisation, as
-    dpgo's example), ``"odometry"`` (odometry composition) or ``"problem"`` (``graph.poses``)."""
-    if init == "chordal":
-        from popbench.solvers.chordal import chordal_initialisation
-
-        return chordal_initialisation(graph)
-    if init == "odometry":
-        return graph.odometry_initial()
-    if init == "problem":
-        return graph.poses
-    raise ValueRangeError("init", init, " or ".join(INITIALISATIONS))
-
 
 def solve_rbcd(
     graph: PoseGraph,
     robots: np.ndarray,
     budget: Budget,
     options: RBCDOptions,
-    init: str = "chordal",
     rank: int = 5,
     certify: bool = False,
     seed: int = 0,
@@ -870,11 +853,11 @@ def solve_rbcd(
     """Run RBCD on ``graph`` split by ``robots`` ``(N,)`` and round the result.
 
     Args:
-        graph: the global pose graph; ``graph.poses[0]`` fixes the gauge of the output.
+        graph: the global pose graph; ``graph.poses`` is the start (lifted to rank ``r``) and
+            ``graph.poses[0]`` fixes the gauge of the output.
         robots: ``(N,)`` vertex → robot assignment (the blocks).
         budget: rounds (one colour class each) and an optional wall-clock cap.
         options: acceleration, restart and local-solver settings.
-        init: see :func:`initial_poses`.
         rank: ``r ≥ 2`` of the relaxation (dpgo 5).
         certify: also compute ``λ_min`` of the certificate (``extras["certificate_min_eig"]``).
         seed: seeds the random lifting matrix ``St(2, r)``.
@@ -882,7 +865,7 @@ def solve_rbcd(
     Returns:
         The :class:`~popbench.methods.Result`; ``history`` holds the relaxation's ``2f``
         (F_chordal of the rank-r iterate) per round, ``F``/``F_chordal``/``chi2`` are those of
-        the rounded poses. ``parallel_s`` includes the initialisation (centralised) and
+        the rounded poses. ``parallel_s`` includes the lifting of the start and
         ``1/n`` of the setup (Q, blocks, factorisations, which each robot does for itself).
     """
     if rank < 2:
@@ -890,7 +873,7 @@ def solve_rbcd(
     if options.rounding not in ROUNDINGS:  # before the rounds, not after them
         raise ValueRangeError("rounding", options.rounding, " or ".join(ROUNDINGS))
     start = time.perf_counter()
-    x0 = lift(initial_poses(graph, init), random_stiefel(rank, seed))
+    x0 = lift(graph.poses, random_stiefel(rank, seed))
     initialised = time.perf_counter()
     q = connection_laplacian(graph)
     classes = colour_robots(graph, robots)
@@ -907,7 +890,6 @@ def solve_rbcd(
     wall_s = time.perf_counter() - start
     extras = {
         "rank": rank,
-        "init": init,
         "colours": len(classes),
         "cut_edges": int(np.count_nonzero(robots[graph.tails] != robots[graph.heads])),
         "restarts": run.restarts,

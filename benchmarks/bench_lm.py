@@ -28,6 +28,7 @@ import numpy as np
 
 from popbench import datasets, objective
 from popbench.distributed import DistributedProblem
+from popbench.initial import with_start
 from popbench.methods import Budget
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.solvers.lm import reference_optimum, solve, solve_graph
@@ -102,7 +103,8 @@ def table(names: list[str]) -> None:
         problem = DistributedProblem.single_robot(graph)
         for init in ("chordal", "odometry"):
             for stage in (False, True):
-                result = solve(problem, Budget(iterations=500), init=init, chordal_stage=stage)
+                started = with_start(problem, init)
+                result = solve(started, Budget(iterations=500), chordal_stage=stage)
                 gap = result.F / REFERENCE_F[name] - 1.0
                 print(
                     f"| {name} | {init} | {'yes' if stage else 'no'} | {result.F:.6f} | "

@@ -30,13 +30,14 @@ from reference import PUBLISHED_OPTIMA, gtsam_lm_seconds
 from baselines import mm_pgo
 from popbench import datasets
 from popbench.distributed import DistributedProblem
+from popbench.initial import with_start
 from popbench.methods import Budget, Result
 from popbench.outliers import with_outliers
 
 
 def run(name: str, robots: int, init: str, iterations: int) -> Result:
-    problem = DistributedProblem.from_graph(datasets.load(name), robots)
-    result = mm_pgo.solve(problem, Budget(iterations=iterations), init=init)
+    problem = with_start(DistributedProblem.from_graph(datasets.load(name), robots), init)
+    result = mm_pgo.solve(problem, Budget(iterations=iterations))
     gaps = result.history / PUBLISHED_OPTIMA[name] - 1.0
     within = np.flatnonzero(gaps < 1e-3)
     first = str(within[0]) if within.size else "-"
@@ -51,12 +52,12 @@ def run(name: str, robots: int, init: str, iterations: int) -> Result:
 def timing_row(name: str, iterations: int, repeats: int) -> str:
     """A timing-table row for ``name`` at n = 7: minima over ``repeats`` alternating runs of
     GTSAM LM and of mm-pgo (chordal start) of the wall and the CPU seconds, and their ratios."""
-    problem = DistributedProblem.from_graph(datasets.load(name), 7)
+    problem = with_start(DistributedProblem.from_graph(datasets.load(name), 7), "chordal")
     references, runs = [], []
     for _ in range(repeats):
         references.append(gtsam_lm_seconds(name))
         cpu = time.process_time()
-        result = mm_pgo.solve(problem, Budget(iterations=iterations), init="chordal")
+        result = mm_pgo.solve(problem, Budget(iterations=iterations))
         runs.append((result.wall_s, time.process_time() - cpu, result.parallel_s))
     wall, cpu, parallel = (min(column) for column in zip(*runs, strict=True))
     reference_wall, reference_cpu = (min(column) for column in zip(*references, strict=True))
@@ -102,8 +103,8 @@ def main() -> None:
     if not args.skip_outliers:
         print("\n| dataset | n | kernel | outliers | precision | recall | F_chordal |")
         print("|---|---|---|---|---|---|---|")
-        base = DistributedProblem.from_graph(datasets.load("intel"), 7)
-        problem = with_outliers(base, 0.10, seed=0)
+        base = with_start(DistributedProblem.from_graph(datasets.load("intel"), 7), "chordal")
+        problem = with_outliers(base, 0.10, seed=0)  # the chordal start of the corrupted data
         for kernel in ("gm", "welsch", "huber"):
             result = mm_pgo.solve(problem, Budget(iterations=args.iterations), kernel=kernel)
             print(

@@ -13,7 +13,7 @@ over the same graph (what a non-incremental implementation pays per step). Print
 ratio full / incremental.
 
 Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + ADMM consensus) and
-mm-pgo's 1000 iterations (baselines.mm_pgo.solve, init="given": the same odometry start), with
+mm-pgo's 1000 iterations (baselines.mm_pgo.solve, from the same odometry start), with
 F, wall and simulated parallel time, the wall-time ratio mm-pgo / prop-v1 and prop-v1's split of
 its wall time (actor episode / ADMM consensus).
 
@@ -98,8 +98,8 @@ def city_comparison(robots: int, checkpoint: Path) -> None:
     problem = dataset_problem("city10k", robots)
     print(f"\ncity10k, n = {robots}, odometry start (F = {problem_f(problem):.4g})")
     print(f"{'method':>22} {'F':>12} {'wall s':>9} {'parallel s':>11} {'iterations':>11}")
-    prop = solve_prop_v1(problem, Budget(), init="problem", checkpoint=checkpoint)
-    mm = mm_pgo.solve(problem, Budget(1000), init="given")
+    prop = solve_prop_v1(problem, Budget(), checkpoint=checkpoint)
+    mm = mm_pgo.solve(problem, Budget(1000))
     for name, result in (("prop-v1", prop), ("mm-pgo (1000 it.)", mm)):
         print(
             f"{name:>22} {result.F:>12.6g} {result.wall_s:>9.2f} {result.parallel_s:>11.2f} "

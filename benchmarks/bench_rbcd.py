@@ -42,6 +42,7 @@ from scipy.sparse import _sparsetools  # noqa: E402
 from baselines import rbcd  # noqa: E402
 from popbench import datasets  # noqa: E402
 from popbench.distributed import DistributedProblem  # noqa: E402
+from popbench.initial import with_start  # noqa: E402
 from popbench.methods import Budget, Result, get_method  # noqa: E402
 
 METHODS = ("cc-pgo", "ml-pgo")
@@ -88,8 +89,8 @@ def first_within(history: np.ndarray, optimum: float) -> int | None:
 
 def run(name: str, robots: int, method: str, iterations: int, init: str) -> Result:
     graph = datasets.load(name)
-    problem = DistributedProblem.from_graph(graph, robots)
-    return get_method(method)(problem, Budget(iterations=iterations), init=init)
+    problem = with_start(DistributedProblem.from_graph(graph, robots), init)
+    return get_method(method)(problem, Budget(iterations=iterations))
 
 
 def row(name: str, robots: int, method: str, result: Result) -> str:

@@ -32,7 +32,7 @@ how often each beats the initial estimate.
 Part 2 — datasets at n robots from the odometry start: F and wall time of prop-v1 and prop-v2;
 for reference F of `lm` (75 iterations) from the same odometry start and the optimum floor F*
 (`lm` from the chordal initialisation, up to 300 iterations), with prop-v2's relative gap to F*;
-and mm-pgo's 1000 iterations (baselines.mm_pgo, init="given": the same odometry start, n robots):
+and mm-pgo's 1000 iterations (baselines.mm_pgo, from the same odometry start, n robots):
 F and wall time.
 """
 
@@ -197,7 +197,7 @@ def dataset_table(checkpoint: Path, names: list[str], robots: int, align: bool) 
         v2 = solve_prop_v2(problem, Budget(), checkpoint=checkpoint, align_frames=align)
         lm = solve_graph(problem.graph, problem.graph.poses, iterations=75)
         optimum = solve_graph(problem.graph, chordal_initialisation(problem.graph), 300).F
-        mm = mm_pgo.solve(problem, Budget(1000), init="given")
+        mm = mm_pgo.solve(problem, Budget(1000))
         v1_f, v1_wall = v2.extras["F_prop_v1"], v2.extras["prop_v1_wall_s"]
         print(
             f"{name:>9} {start:>11.5g} {v1_f:>11.5g} {v1_wall:>10.1f} {v2.F:>11.5g} "

@@ -43,7 +43,7 @@ def make_problem_source(
     poses_per_robot: int = 60,
     loop_ratio: float = 0.15,
     partition: str = "metis",
-    initial: str = "odometry",
+    start: str = "odometry",
     max_vertices: int | None = None,
     max_edges: int | None = None,
     max_degree: int | None = None,
@@ -57,7 +57,8 @@ def make_problem_source(
         dataset: a registered dataset name or a g2o/TORO path; ``None`` for synthetic problems.
         poses_per_robot, loop_ratio: synthetic generator options.
         partition: ``"metis"`` or ``"contiguous"`` (datasets only).
-        initial: dataset initial estimate: ``"odometry"`` (composition, default) or ``"file"``.
+        start: dataset initial estimate, a name of :data:`popbench.initial.STARTS`
+            (``"odometry"``, the composition, default; ``"chordal"``; ``"given"``, the file's).
         max_vertices, max_edges, max_degree: padding maxima overriding the defaults.
     """
     if dataset is None:
@@ -66,7 +67,7 @@ def make_problem_source(
         dims = Dimensions.of(probes, PADDING_MARGIN, multiple=8)
         has_truth = True
     else:
-        problem = dataset_problem(dataset, robots, partition, initial)
+        problem = dataset_problem(dataset, robots, partition, start)
         source = _Constant(problem)
         dims = Dimensions.of([problem])
         has_truth = problem.graph.ground_truth is not None
@@ -77,19 +78,16 @@ def make_problem_source(
 
 
 def dataset_problem(
-    dataset: str, robots: int, partition: str = "metis", initial: str = "odometry"
+    dataset: str, robots: int, partition: str = "metis", start: str = "odometry"
 ) -> DistributedProblem:
-    """A dataset split among ``robots`` (:meth:`DistributedProblem.from_graph`, seed 0), with the
-    odometry-composition initial estimate unless ``initial="file"``."""
+    """A dataset split among ``robots`` (:meth:`DistributedProblem.from_graph`, seed 0),
+    carrying the ``start`` estimate (:func:`popbench.initial.with_start`; default the odometry
+    composition, ``"given"`` the file's poses)."""
     from popbench.datasets import load
-    from popbench.errors import ValueRangeError
+    from popbench.initial import with_start
 
-    graph = load(dataset)
-    if initial == "odometry":
-        graph = graph.replace(poses=graph.odometry_initial())
-    elif initial != "file":
-        raise ValueRangeError("initial", initial, "odometry, file")
-    return DistributedProblem.from_graph(graph, robots, partition, initial=initial)
+    graph = with_start(load(dataset), start)
+    return DistributedProblem.from_graph(graph, robots, partition, start=start)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,7 +124,7 @@ def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, A
         "poses_per_robot",
         "loop_ratio",
         "partition",
-        "initial",
+        "start",
         "max_vertices",
         "max_edges",
         "max_degree",
@@ -147,7 +145,7 @@ def make_torchrl_env(
     """A batched TorchRL :class:`~envs.torchrl_env.PGOEnv` (``B = batch_size`` problems).
 
     Options: those of :func:`make_problem_source` (``dataset``, ``poses_per_robot``,
-    ``loop_ratio``, ``partition``, ``initial``, ``max_*``) and of ``PGOEnv`` (``delta_max``,
+    ``loop_ratio``, ``partition``, ``start``, ``max_*``) and of ``PGOEnv`` (``delta_max``,
     ``reward``, ``invalid_edge``, ``dtype``). ``reward`` defaults to ``"localisation"`` when the
     problems have ground truth, else ``"F"``.
     """

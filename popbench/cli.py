@@ -20,7 +20,6 @@ import typer
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness.cli import plot_app, run_app
 
-INITS = ("odometry", "chordal")
 PARTITIONS = ("metis", "contiguous")
 EXIT_BAD_INPUT = 2
 EXIT_RUNTIME = 1
@@ -176,14 +175,14 @@ def parse_method_options(pairs: list[str]) -> dict[str, Any]:
     return options
 
 
-def build_problem(source: str, robots: int, partition: str, seed: int):
-    """``source`` (a registered name or a file) split among ``robots`` robots, its poses the
-    odometry composition (the harness's problem for ``init="odometry"``)."""
+def build_problem(source: str, robots: int, partition: str, seed: int, init: str = "odometry"):
+    """``source`` (a registered name or a file) split among ``robots`` robots, carrying the
+    ``init`` start (:func:`popbench.harness.problems.distributed_problem`, as the harness)."""
     from popbench.harness.problems import distributed_problem
 
     if partition not in PARTITIONS:
         raise ValueRangeError("--partition", partition, " or ".join(PARTITIONS))
-    return distributed_problem(source, robots, "odometry", partition, seed)
+    return distributed_problem(source, robots, init, partition, seed)
 
 
 SET_BY_CLI = {"init": "--init"}  # method options the command sets from its own flags
@@ -283,17 +282,15 @@ def solve_record(
     prints). ``options`` are checked by :func:`check_method_options`; ``progress`` (optional)
     is shown each stage and told of each round.
 
-    The problem holds the odometry composition; the method is called with ``init=init``
-    (``"odometry"`` or ``"chordal"``, which every registered method accepts) and builds its own
-    starting point. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since methods
-    differ in what their ``history`` records.
+    The problem carries the ``init`` start (a name of :data:`popbench.initial.STARTS`) and the
+    method starts from it. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since
+    methods differ in what their ``history`` records.
     """
     from popbench import objective
-    from popbench.harness.problems import initial_poses
+    from popbench.initial import check_start
     from popbench.methods import Budget
 
-    if init not in INITS:
-        raise ValueRangeError("--init", init, " or ".join(INITS))
+    check_start(init, "--init")
     if iterations is not None and iterations < 0:
         raise ValueRangeError("--iterations", iterations, "an integer ≥ 0")
     if seconds is not None and not seconds > 0:
@@ -307,8 +304,8 @@ def solve_record(
     if progress is not None:
         split = f" and splitting it among {robots} robots" if robots > 1 else ""
         progress.stage(f"loading {source}{split}…")
-    problem = build_problem(source, robots, partition, seed)
-    options = {"init": init, **(options or {})}
+    problem = build_problem(source, robots, partition, seed, init)
+    options = dict(options or {})
     if progress is not None:
         team = f", {problem.num_robots} robots" if problem.num_robots > 1 else ""
         episode = method.startswith("prop-")  # one episode; --iterations does not apply
@@ -329,7 +326,7 @@ def solve_record(
         "partition": partition if problem.num_robots > 1 else None,
         "poses": graph.num_poses,
         "edges": graph.num_edges,
-        "F_init": objective.objective(graph, initial_poses(source, init)),
+        "F_init": objective.objective(graph, graph.poses),
         "F": float(result.F),
         "F_chordal": float(result.F_chordal),
         "chi2": float(result.chi2),
@@ -338,7 +335,7 @@ def solve_record(
         "parallel_s": float(result.parallel_s),
         "history_length": len(result.history),
         "messages": int(result.messages),
-        "options": {key: value for key, value in options.items() if key != "init"},
+        "options": options,
     }
     record["extras"] = {
         key: value.item() if hasattr(value, "item") else value
@@ -385,7 +382,10 @@ def solve(
         str, typer.Option(help="Registered method: lm, cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2.")
     ] = "lm",
     init: Annotated[
-        str, typer.Option(help="Initial estimate: odometry (composition) or chordal.")
+        str,
+        typer.Option(
+            help="Initial estimate: odometry (composition), chordal, or given (the file's poses)."
+        ),
     ] = "odometry",
     iterations: Annotated[
         int | None,

@@ -63,13 +63,14 @@ class DistributedProblem:
         graph: the global graph. ``graph.poses`` is the initial estimate, ``graph.robots`` the
             ``(N,)`` vertex → robot assignment (robot 0 owns vertex 0, the gauge) and
             ``graph.kinds`` the edge labels under it.
-        initial: a label saying how ``graph.poses`` was made (``"odometry"``, ``"chordal"``,
-            ``"file"``, ...); it is not used to recompute anything.
+        start: the name of the start ``graph.poses`` holds (one of
+            :data:`popbench.initial.STARTS`; :func:`popbench.initial.with_start` makes it). Every
+            method starts from ``graph.poses``; the name is recorded, not used to recompute.
         outlier_mask: ``(M,)`` bool, True for injected outlier edges, or None.
     """
 
     graph: PoseGraph
-    initial: str = "odometry"
+    start: str = "odometry"
     outlier_mask: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -82,9 +83,9 @@ class DistributedProblem:
         return self.graph.num_robots
 
     @classmethod
-    def single_robot(cls, graph: PoseGraph, initial: str = "odometry") -> DistributedProblem:
-        """The whole graph on one robot."""
-        return cls(graph.replace(robots=np.zeros(graph.num_poses, dtype=np.int64)), initial)
+    def single_robot(cls, graph: PoseGraph, start: str = "odometry") -> DistributedProblem:
+        """The whole graph on one robot (its poses the ``start`` estimate, by name)."""
+        return cls(graph.replace(robots=np.zeros(graph.num_poses, dtype=np.int64)), start)
 
     @classmethod
     def from_graph(
@@ -93,7 +94,7 @@ class DistributedProblem:
         robots: int | np.ndarray,
         partition: str = "metis",
         seed: int = 0,
-        initial: str = "odometry",
+        start: str = "odometry",
         outlier_mask: np.ndarray | None = None,
     ) -> DistributedProblem:
         """Split ``graph`` among robots and relabel its edge kinds.
@@ -106,7 +107,8 @@ class DistributedProblem:
             partition: ``"metis"`` (default) or ``"contiguous"``
                 (see :mod:`popbench.partition`).
             seed: METIS seed.
-            initial: label of how ``graph.poses`` was made.
+            start: the name of the start ``graph.poses`` holds (see
+                :func:`popbench.initial.with_start`, which makes it).
             outlier_mask: ``(M,)`` ground-truth outlier flags, if any.
 
         Raises:
@@ -119,7 +121,7 @@ class DistributedProblem:
             assignment = robots
         else:
             assignment = partitioning.partition(graph, robots, partition, seed)
-        return cls(partitioning.assign(graph, assignment), initial, outlier_mask)
+        return cls(partitioning.assign(graph, assignment), start, outlier_mask)
 
     # ----- derived views (computed once) -------------------------------------------------------
 

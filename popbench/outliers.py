@@ -64,14 +64,15 @@ def inject_outliers(
 def with_outliers(problem: DistributedProblem, rate: float, seed: int = 0) -> DistributedProblem:
     """``problem`` with outliers injected (:func:`inject_outliers`) and ``outlier_mask`` set.
 
-    When ``problem.initial == "odometry"`` the initial estimate is recomputed as the odometry
-    composition of the corrupted measurements (a corrupted inter-robot relative edge is part of
-    the chain); otherwise the poses are kept.
+    The problem's start is made again from the corrupted measurements
+    (:func:`popbench.initial.with_start`; a corrupted inter-robot relative edge is part of the
+    odometry chain), except a ``"given"`` start, whose poses are kept.
     """
+    from popbench.initial import with_start
+
     graph, mask = inject_outliers(problem, rate, seed)
-    if problem.initial == "odometry":
-        graph = graph.replace(poses=graph.odometry_initial())
-    return DistributedProblem(graph, problem.initial, mask)
+    corrupted = DistributedProblem(graph, problem.start, mask)
+    return corrupted if problem.start == "given" else with_start(corrupted, problem.start)
 
 
 def precision_recall(flagged_outlier: np.ndarray, true_outlier: np.ndarray) -> tuple[float, float]:

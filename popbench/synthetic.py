@@ -36,6 +36,7 @@ from popbench import se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph, robot_kinds
+from popbench.initial import with_start
 
 # σ (odometry, intra-robot loop, inter-robot relative and loop), same units on x, y [m], θ [rad].
 NOISE_LEVELS: dict[str, tuple[float, float, float]] = {
@@ -168,4 +169,4 @@ def make_problem(
         robots=owner,
         name=f"synthetic-{noise}-R{robots}x{poses_per_robot}-seed{seed}",
     )
-    return DistributedProblem(graph.replace(poses=graph.odometry_initial()), initial="odometry")
+    return with_start(DistributedProblem(graph), "odometry")

@@ -16,6 +16,7 @@ from popbench import objective, se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph
+from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.solvers.lm import reference_optimum, solve, solve_graph
@@ -135,7 +136,7 @@ def test_lm_matches_scipy_least_squares(rng) -> None:
 
 def test_solve_returns_a_consistent_result(small_graph) -> None:
     problem = DistributedProblem.single_robot(small_graph)
-    result = get_method("lm")(problem, Budget(iterations=50), init="chordal")
+    result = get_method("lm")(with_start(problem, "chordal"), Budget(iterations=50))
     costs = objective.evaluate(small_graph, result.poses)
     assert (result.F, result.F_chordal, result.chi2) == pytest.approx(tuple(costs), rel=1e-12)
     assert result.history.size == result.iterations + 1
@@ -148,13 +149,13 @@ def test_solve_returns_a_consistent_result(small_graph) -> None:
 
 def test_solve_respects_the_iteration_budget_and_the_inits(small_graph) -> None:
     problem = DistributedProblem.single_robot(small_graph.replace(poses=small_graph.poses + 0.3))
-    short = solve(problem, Budget(iterations=2), init="odometry")
+    short = solve(with_start(problem, "odometry"), Budget(iterations=2))
     assert short.iterations == 2
     assert short.history[0] == pytest.approx(objective.objective(small_graph))
     from_problem = solve(problem, Budget(iterations=0), seed=3)  # harness options are ignored
     assert from_problem.F == pytest.approx(objective.objective(problem.graph))
     with pytest.raises(ValueRangeError):
-        solve(problem, Budget(iterations=2), init="ground-truth")
+        with_start(problem, "ground-truth")
 
 
 @pytest.mark.dataset

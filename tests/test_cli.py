@@ -239,13 +239,13 @@ def test_solve_help_explains_rounds_and_robots() -> None:
     assert "lm, is centralised" in params["robots"]
 
 
-def _counting_solve(problem, budget, init="problem", **_):
+def _counting_solve(problem, budget, **_):
     """A registered method for the progress test: reports each round, then runs LM."""
     from popbench.solvers.lm import solve as lm_solve
 
     for done in range(1, budget.iterations + 1):
         budget.round_done(done)
-    return lm_solve(problem, budget, init=init)
+    return lm_solve(problem, budget)
 
 
 class _Recorder:

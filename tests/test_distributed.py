@@ -110,9 +110,9 @@ def test_from_graph_metis_contiguous_and_explicit(small_graph):
     blocks = DistributedProblem.from_graph(small_graph, 3, partition="contiguous")
     np.testing.assert_array_equal(blocks.robots, contiguous(30, 3))
     assert blocks.inter_robot_edges.size == 5
-    explicit = DistributedProblem.from_graph(small_graph, contiguous(30, 3), initial="chordal")
+    explicit = DistributedProblem.from_graph(small_graph, contiguous(30, 3), start="chordal")
     np.testing.assert_array_equal(explicit.graph.kinds, blocks.graph.kinds)
-    assert explicit.initial == "chordal"
+    assert explicit.start == "chordal"
     with pytest.raises(ValueRangeError):
         DistributedProblem.from_graph(small_graph, 31)
     with pytest.raises(ValueRangeError):

@@ -12,6 +12,7 @@ from popbench import objective, se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, make_graph
+from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.outliers import precision_recall
 
@@ -148,23 +149,19 @@ def test_hessian_drift_is_the_relative_jacobian_change(small_graph, rng):
     change = np.linalg.norm(after - before, axis=(1, 2)) / np.linalg.norm(before, axis=(1, 2))
     drift = team.hessian_drift(mm_pgo.edge_terms(moved, team.edges))
     assert drift == pytest.approx(change.max(), rel=1e-9)
-    every = mm_pgo.solve(problem, Budget(iterations=30), init="problem", hessian_tolerance=0.0)
-    never = mm_pgo.solve(problem, Budget(iterations=30), init="problem", hessian_tolerance=1e9)
+    every = mm_pgo.solve(problem, Budget(iterations=30), hessian_tolerance=0.0)
+    never = mm_pgo.solve(problem, Budget(iterations=30), hessian_tolerance=1e9)
     # Checks at iterations 0, 10, 20; H is fresh at 0 (factorised at the start in the set-up).
     assert (every.extras["refactorisations"], never.extras["refactorisations"]) == (2, 0)
 
 
 def test_plain_mm_is_monotone_and_reaches_the_optimum(small_graph):
-    plain = mm_pgo.solve(
-        _split(small_graph, 3), Budget(iterations=100), init="problem", accelerated=False
-    )
+    plain = mm_pgo.solve(_split(small_graph, 3), Budget(iterations=100), accelerated=False)
     assert np.all(np.diff(plain.history) <= 1e-9 * plain.history[0])
     assert plain.history[-1] < 0.5 * plain.history[0]
     assert plain.poses[0] == pytest.approx(small_graph.poses[0])  # gauge held
-    accelerated = mm_pgo.solve(_split(small_graph, 3), Budget(iterations=300), init="problem")
-    single = mm_pgo.solve(
-        DistributedProblem.single_robot(small_graph), Budget(iterations=30), init="problem"
-    )
+    accelerated = mm_pgo.solve(_split(small_graph, 3), Budget(iterations=300))
+    single = mm_pgo.solve(DistributedProblem.single_robot(small_graph), Budget(iterations=30))
 
     # Independent reference: BFGS on F_chordal over poses 1..N−1 (pose 0 fixed), from mm-pgo's
     # answer and from the odometry start.
@@ -182,7 +179,7 @@ def test_plain_mm_is_monotone_and_reaches_the_optimum(small_graph):
 
 def test_result_accounting(small_graph):
     problem = _split(small_graph, 3)
-    result = get_method("mm-pgo")(problem, Budget(iterations=12), init="problem", seed=3)
+    result = get_method("mm-pgo")(problem, Budget(iterations=12), seed=3)
     assert result.iterations == 12
     assert result.history.shape == (13,)
     assert result.history[-1] == pytest.approx(result.F_chordal)
@@ -221,7 +218,7 @@ def _grid_with_outlier(rng: np.random.Generator):
 def test_robust_kernel_flags_the_hand_made_outlier(kernel: str, rng):
     graph, outlier = _grid_with_outlier(rng)
     problem = DistributedProblem.from_graph(graph, 2, partition="contiguous", outlier_mask=outlier)
-    result = mm_pgo.solve(problem, Budget(iterations=100), init="odometry", kernel=kernel)
+    result = mm_pgo.solve(with_start(problem, "odometry"), Budget(iterations=100), kernel=kernel)
     flagged = ~result.inlier_mask
     assert np.array_equal(flagged, outlier)
     assert result.extras["precision"] == 1.0 and result.extras["recall"] == 1.0
@@ -234,7 +231,7 @@ def test_huber_flags_exactly_the_hand_made_outlier(rng):
     """Huber down-weights the planted outlier to w = 0.051 (measured) and no other edge below 1."""
     graph, outlier = _grid_with_outlier(rng)
     problem = DistributedProblem.from_graph(graph, 3, partition="contiguous", outlier_mask=outlier)
-    result = mm_pgo.solve(problem, Budget(iterations=40), kernel="huber")
+    result = mm_pgo.solve(with_start(problem, "chordal"), Budget(iterations=40), kernel="huber")
     flagged = ~result.inlier_mask
     assert np.array_equal(flagged, outlier)
     assert result.extras["precision"] == 1.0 and result.extras["recall"] == 1.0
@@ -249,7 +246,7 @@ def test_huber_flags_exactly_the_hand_made_outlier(rng):
 
 @pytest.mark.dataset
 def test_reaches_the_published_mit_optimum_with_three_robots():
-    problem = DistributedProblem.from_graph(require_dataset("mit"), 3)
+    problem = with_start(DistributedProblem.from_graph(require_dataset("mit"), 3), "chordal")
     result = mm_pgo.solve(problem, Budget(iterations=400))
     gap = result.F_chordal / MIT_OPTIMUM - 1.0  # measured +8.4e-6
     assert -1e-4 < gap < 1e-3  # below the published optimum by more than its rounding: a bug

@@ -24,6 +24,7 @@ from agents.methods import (
 from popbench import objective
 from popbench.cli import main, train_config
 from popbench.errors import ValueRangeError
+from popbench.initial import with_start
 from popbench.io import write_g2o
 from popbench.methods import Budget, get_method, method_options
 from popbench.synthetic import make_problem
@@ -115,7 +116,7 @@ def test_incremental_inference_equals_full_forward(problem) -> None:
 
 
 def test_prop_v1_result_fields(problem, tiny_checkpoint: Path) -> None:
-    result = solve_prop_v1(problem, Budget(10), init="problem", seed=3, checkpoint=tiny_checkpoint)
+    result = solve_prop_v1(problem, Budget(10), seed=3, checkpoint=tiny_checkpoint)
     graph = problem.graph
     assert result.poses.shape == (graph.num_poses, 3)
     costs = objective.evaluate(graph, result.poses)
@@ -161,13 +162,10 @@ def test_prop_v2_reaches_the_gtsam_optimum(problem, tiny_checkpoint: Path, tmp_p
 def test_prop_v1_aligns_the_frames_before_the_consensus(problem, tiny_checkpoint: Path) -> None:
     """With `align_frames=True` the consensus starts from the aligned maps (lower F than the
     episode's own); by default the ADMM gets the episode's copies as they are (the paper)."""
-    plain = solve_prop_v1(
-        problem, Budget(), init="odometry", checkpoint=tiny_checkpoint, consensus_iterations=3
-    )
+    plain = solve_prop_v1(problem, Budget(), checkpoint=tiny_checkpoint, consensus_iterations=3)
     aligned = solve_prop_v1(
         problem,
         Budget(),
-        init="odometry",
         checkpoint=tiny_checkpoint,
         consensus_iterations=3,
         align_frames=True,
@@ -180,12 +178,14 @@ def test_prop_v1_aligns_the_frames_before_the_consensus(problem, tiny_checkpoint
     assert "align_frames" in method_options("prop-v2")
 
 
-def test_registry_and_init_options(problem, tiny_checkpoint: Path) -> None:
+def test_registry_and_the_problem_start(problem, tiny_checkpoint: Path) -> None:
     solve = get_method("prop-v1")
-    result = solve(problem, Budget(5), init="odometry", seed=0, checkpoint=tiny_checkpoint)
+    chordal = with_start(problem, "chordal")
+    result = solve(chordal, Budget(5), seed=0, checkpoint=tiny_checkpoint)
     assert np.isfinite(result.F)
-    with pytest.raises(ValueRangeError, match="init"):
-        solve(problem, Budget(5), init="random", checkpoint=tiny_checkpoint)
+    assert result.history[0] == pytest.approx(objective.objective(chordal.graph))  # its start
+    with pytest.raises(ValueRangeError, match="start"):
+        with_start(problem, "random")
 
 
 def test_replication_to_35_robots_without_retraining(tiny_checkpoint: Path) -> None:

@@ -27,7 +27,7 @@ def test_structure(robots):
     graph = problem.graph
     n = robots * 60
     assert graph.poses.shape == graph.ground_truth.shape == (n, 3)
-    assert problem.num_robots == robots and problem.initial == "odometry"
+    assert problem.num_robots == robots and problem.start == "odometry"
     np.testing.assert_array_equal(graph.robots, np.arange(n) // 60)  # contiguous ids per robot
     # chain k → k+1 first, then round(0.15 N) loop closures
     assert graph.num_edges == n - 1 + round(0.15 * n)

@@ -71,11 +71,9 @@ def _rates(text: str) -> tuple[float, ...]:
 
 
 def _init(value: str) -> str:
-    from popbench.harness.problems import INITS
+    from popbench.initial import check_start
 
-    if value not in INITS:
-        raise ValueRangeError("--init", value, " | ".join(INITS))
-    return value
+    return check_start(value, "--init")
 
 
 def _methods(text: str) -> tuple[str, ...]:
@@ -110,7 +108,7 @@ def table1_command(
     ),
     seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
     init: str = typer.Option(
-        "odometry", help="Initial estimate for every method: odometry | chordal."
+        "odometry", help="Initial estimate for every method: odometry | chordal | given."
     ),
     partition: str = typer.Option("metis", help="metis | contiguous."),
     out: Path = typer.Option(
@@ -171,7 +169,9 @@ def outliers_command(
     seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
     iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
     kernel: str = typer.Option("gm", help="mm-pgo robust kernel: huber | gm | welsch."),
-    init: str = typer.Option("odometry", help="odometry | chordal (from the corrupted data)."),
+    init: str = typer.Option(
+        "odometry", help="odometry | chordal (made from the corrupted data) | given (the file's)."
+    ),
     out: Path = typer.Option(Path("results/outliers"), help="Output folder."),
     fresh: bool = typer.Option(False, "--fresh", help=FRESH_HELP),
 ) -> None:
@@ -209,7 +209,7 @@ def scalability_command(
     robots: str = typer.Option("1,2,3,5,7,10,14,20,28,35,50,70", help="Team sizes."),
     methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods."),
     iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
-    init: str = typer.Option("odometry", help="odometry | chordal."),
+    init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
     out: Path = typer.Option(Path("results/scalability"), help="Output folder."),
     fresh: bool = typer.Option(False, "--fresh", help=FRESH_HELP),
 ) -> None:
@@ -243,7 +243,7 @@ def trajectories_command(
     robots: int = typer.Option(7, min=1, help="Team size."),
     methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods to plot."),
     iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
-    init: str = typer.Option("odometry", help="odometry | chordal."),
+    init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
     out: Path = typer.Option(
         None,
         help="Output stem: writes STEM.png and STEM.pdf "

@@ -26,7 +26,7 @@ def plot_trajectories(
     problem = problems.distributed_problem(dataset, robots, init)
     estimates = [(f"initial ({init})", problem.graph.poses)]
     for method in methods:
-        result = get_method(method)(problem, Budget(iterations=iterations), init="problem")
+        result = get_method(method)(problem, Budget(iterations=iterations))
         estimates.append((f"{method}: F = {result.F:.4g}", result.poses))
     fig, axes = plt.subplots(1, len(estimates), figsize=(4 * len(estimates), 4), squeeze=False)
     colours = plt.get_cmap("tab10" if robots <= 10 else "turbo")(

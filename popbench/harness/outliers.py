@@ -21,6 +21,7 @@ from popbench.harness.cache import CellCache, provenance
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table2_cell
 from popbench.harness.runner import Spec, run_cells
+from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.outliers import inject_outliers, precision_recall
 
@@ -68,23 +69,18 @@ def cell_specs(config: OutliersConfig) -> list[Spec]:
 def corrupted_problem(
     dataset: str, robots: int, rate: float, seed: int, init: str
 ) -> DistributedProblem:
-    """The split dataset with outliers injected and its initial estimate made from them."""
-    clean = problems.distributed_problem(dataset, robots, "odometry")
+    """The split dataset with outliers injected and its ``init`` start made from them
+    (:func:`popbench.initial.with_start` on the corrupted problem)."""
+    clean = problems.distributed_problem(dataset, robots, "given")  # the file's poses
     graph, mask = inject_outliers(clean, rate, seed)
-    if init == "odometry":
-        poses = graph.odometry_initial()
-    else:
-        from popbench.solvers.chordal import chordal_initialisation
-
-        poses = chordal_initialisation(graph)
-    return DistributedProblem(graph.replace(poses=poses), init, mask)
+    return with_start(DistributedProblem(graph, "given", mask), init)
 
 
 def compute_cell(spec: Spec) -> dict[str, Any]:
     problem = corrupted_problem(
         spec["dataset"], spec["robots"], spec["rate"], spec["seed"], spec["init"]
     )
-    options: dict[str, Any] = {"init": "problem", "seed": spec["seed"]}
+    options: dict[str, Any] = {"seed": spec["seed"]}
     if spec["method"] == "mm-pgo":
         options["kernel"] = spec["kernel"]
     result = get_method(spec["method"])(problem, Budget(iterations=spec["iterations"]), **options)

@@ -1,7 +1,8 @@
 """Problems and optima shared by the experiments, built once per process.
 
-The initial estimate of a table (``init``) is applied to every method alike: the problem's
-``graph.poses`` holds it and every method is run with ``init="problem"``.
+The initial estimate of a table (its ``init`` option, a name of :data:`popbench.initial.STARTS`)
+is applied to every method alike: the problem carries it (:func:`popbench.initial.with_start`)
+and every method starts from the problem's poses.
 
 Each result is remembered per dataset *and* the sha256 of its file, so a graph file edited
 while the process runs is read again rather than served from memory.
@@ -17,8 +18,7 @@ from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.harness.cache import dataset_sha256
-
-INITS = ("odometry", "chordal")
+from popbench.initial import check_start, with_start
 
 
 def _sha(dataset: str) -> str | None:
@@ -34,15 +34,12 @@ def load_graph(dataset: str) -> PoseGraph:
     return _load_graph(dataset, _sha(dataset))
 
 
-def initial_poses(dataset: str, init: str):  # noqa: ANN201 - (N, 3) ndarray
-    """The ``init`` estimate of a dataset: ``odometry`` composition or ``chordal``."""
-    return _initial_poses(dataset, _sha(dataset), init)
-
-
 def distributed_problem(
     dataset: str, robots: int, init: str, partition: str = "metis", seed: int = 0
 ) -> DistributedProblem:
-    """The dataset split among ``robots`` robots, starting from the ``init`` estimate."""
+    """The dataset split among ``robots`` robots, carrying the ``init`` start (a name of
+    :data:`popbench.initial.STARTS`; ValueRangeError otherwise)."""
+    check_start(init, "initial estimate")
     return _distributed_problem(dataset, _sha(dataset), robots, init, partition, seed)
 
 
@@ -68,25 +65,16 @@ def _load_graph(dataset: str, sha256: str | None) -> PoseGraph:
 
 
 @lru_cache(maxsize=16)
-def _initial_poses(dataset: str, sha256: str | None, init: str):  # noqa: ANN202
-    graph = _load_graph(dataset, sha256)
-    if init == "odometry":
-        return graph.odometry_initial()
-    if init == "chordal":
-        from popbench.solvers.chordal import chordal_initialisation
-
-        return chordal_initialisation(graph)
-    raise ValueRangeError("initial estimate", init, " | ".join(INITS))
+def _started_graph(dataset: str, sha256: str | None, init: str) -> PoseGraph:
+    return with_start(_load_graph(dataset, sha256), init)
 
 
 @lru_cache(maxsize=32)
 def _distributed_problem(
     dataset: str, sha256: str | None, robots: int, init: str, partition: str, seed: int
 ) -> DistributedProblem:
-    graph = _load_graph(dataset, sha256).replace(poses=_initial_poses(dataset, sha256, init))
-    return DistributedProblem.from_graph(
-        graph, robots, partition=partition, seed=seed, initial=init
-    )
+    graph = _started_graph(dataset, sha256, init)
+    return DistributedProblem.from_graph(graph, robots, partition=partition, seed=seed, start=init)
 
 
 @lru_cache(maxsize=16)

@@ -94,9 +94,7 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
         spec["dataset"], spec["robots"], spec["init"], spec["partition"], spec["seed"]
     )
     solve = get_method(spec["method"])
-    result = solve(
-        problem, Budget(iterations=spec["iterations"]), init="problem", seed=spec["seed"]
-    )
+    result = solve(problem, Budget(iterations=spec["iterations"]), seed=spec["seed"])
     graph = problem.graph
     return {
         "dataset": spec["dataset"],
