@@ -185,7 +185,7 @@ def test_registry_resolves_both_methods():
 @pytest.mark.parametrize("name", ["cc-pgo", "ml-pgo"])
 def test_mit_three_robots_reaches_the_published_optimum(name):
     graph = require_dataset("mit")
-    problem = DistributedProblem.from_graph(graph, 3)
+    problem = with_start(DistributedProblem.from_graph(graph, 3), "chordal")
     result = get_method(name)(problem, Budget(iterations=150))
     assert result.F_chordal / MIT_OPTIMUM - 1 < 1e-3
     assert result.F_chordal / MIT_OPTIMUM - 1 > -1e-4  # not below the certified optimum
