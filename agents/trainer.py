@@ -7,7 +7,7 @@
                     temperatures, edge entropy, mean log π(δ), mean Q of the taken actions,
                     gate mean (last update of the batch), at eval points eval_f_reduction, and
                     wall_s (seconds of training, summed over resumed calls)
-    learning_curve.png  episode return and held-out F reduction against frames
+    learning_curve.png, .pdf  episode return and held-out F reduction against frames
 and returns a `TrainResult` (frames trained by this call, total frames, updates).
 
 Resuming: the checkpoint's config must match the requested one except for the experiment's
@@ -34,7 +34,6 @@ import contextlib
 import csv
 import dataclasses
 import math
-import os
 import signal
 import threading
 import time
@@ -48,116 +47,14 @@ from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
-from torchrl.objectives import SoftUpdate
 
-from agents.actor import GASACPolicy, HybridActor
-from agents.checkpoint import CheckpointError, ResumeConfigError, read_checkpoint, save_checkpoint
-from agents.config import PRESETS, TrainConfig
-from agents.critic import CentralCritic
-from agents.loss import GASACLoss
+from agents.checkpoint import read_checkpoint, save_checkpoint
+from agents.config import TrainConfig
+from agents.metrics import METRIC_FIELDS, EpisodeTracker, plot_learning_curve, truncate_metrics
+from agents.resume import check_resume_config
+from agents.session import Session, build_session, make_env, restore, session_state
 
 EVAL_SEED_OFFSET = 1_000_003
-METRIC_FIELDS = (
-    "frames",
-    "updates",
-    "episodes",
-    "episode_return",
-    "loss_actor",
-    "loss_qvalue",
-    "alpha_edge",
-    "alpha_delta",
-    "entropy_edge",
-    "log_prob_delta",
-    "q_mean",
-    "gate_mean",
-    "eval_f_reduction",
-    "wall_s",
-)
-
-
-@dataclasses.dataclass
-class Session:
-    """Everything a run holds (built by `build_session`)."""
-
-    config: TrainConfig
-    env: TransformedEnv
-    actor: HybridActor
-    policy: GASACPolicy
-    loss: GASACLoss
-    updater: SoftUpdate
-    optimisers: dict[str, torch.optim.Optimizer]
-    dims: dict[str, int]
-    frames: int = 0
-    updates: int = 0
-
-
-def make_env(config: TrainConfig, batch_size: int, seed: int, **options: Any):
-    """The synthetic TorchRL env of the experiment (imported lazily: envs pulls torchrl)."""
-    from envs import make_torchrl_env
-
-    experiment = config.experiment
-    return make_torchrl_env(
-        robots=experiment.robots,
-        batch_size=batch_size,
-        noise=experiment.noise,
-        seed=seed,
-        device=experiment.device,
-        poses_per_robot=experiment.poses_per_robot,
-        **options,
-    )
-
-
-def build_session(config: TrainConfig) -> Session:
-    """Env (+ recurrent-state primer), actor, critic, loss, target updater and optimisers."""
-    experiment, algorithm = config.experiment, config.algorithm
-    torch.manual_seed(experiment.seed)
-    base_env = make_env(config, experiment.num_envs, experiment.seed)
-    delta_max = tuple(float(v) for v in base_env.core.delta_max.cpu())
-    config = dataclasses.replace(
-        config, model=dataclasses.replace(config.model, delta_max=delta_max)
-    )
-    observation = base_env.observation_spec["agents", "observation"]
-    dims = {
-        "node": observation["node_features"].shape[-1],
-        "edge": observation["edge_attr"].shape[-1],
-        "agents": experiment.robots,
-        "choices": base_env.dims.edges + 1,
-    }
-    actor = HybridActor(dims["node"], dims["edge"], config.model).to(experiment.device)
-    critic = CentralCritic(dims["node"], dims["edge"], dims["agents"], config.model)
-    policy = GASACPolicy(actor)
-    env = TransformedEnv(base_env, policy.primer(dims["agents"], dims["choices"]))
-    loss = GASACLoss(actor, critic.to(experiment.device), algorithm).to(experiment.device)
-    updater = SoftUpdate(loss, tau=algorithm.tau)
-    optimisers = {
-        "actor": torch.optim.Adam(loss.actor_parameters(), lr=algorithm.actor_lr),
-        "critic": torch.optim.Adam(loss.critic_parameters(), lr=algorithm.critic_lr),
-        "alpha": torch.optim.Adam(loss.alpha_parameters(), lr=algorithm.alpha_lr),
-    }
-    return Session(config, env, actor, policy, loss, updater, optimisers, dims)
-
-
-def session_state(session: Session) -> dict[str, Any]:
-    return {
-        "config": session.config.to_dict(),
-        "dims": session.dims,
-        "actor": session.actor.state_dict(),
-        "loss": session.loss.state_dict(),
-        "optimisers": {name: opt.state_dict() for name, opt in session.optimisers.items()},
-        "frames": session.frames,
-        "updates": session.updates,
-    }
-
-
-def restore(session: Session, checkpoint: Path | dict[str, Any]) -> None:
-    """Load networks, optimisers and progress from a checkpoint (path or read state)."""
-    state = checkpoint
-    if not isinstance(state, dict):
-        state = read_checkpoint(checkpoint, session.config.experiment.device)
-    session.loss.load_state_dict(state["loss"])
-    for name, optimiser in session.optimisers.items():
-        optimiser.load_state_dict(state["optimisers"][name])
-    session.frames, session.updates = int(state["frames"]), int(state["updates"])
 
 
 def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
@@ -185,27 +82,6 @@ def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
     session.updater.step()
     session.updates += 1
     return {key: float(value.detach()) for key, value in out.items()}
-
-
-class EpisodeTracker:
-    """Per-environment running returns (mean over agents) across collector batches."""
-
-    def __init__(self, num_envs: int) -> None:
-        self.running = torch.zeros(num_envs)
-        self.episodes = 0
-
-    def update(self, data: TensorDictBase) -> list[float]:
-        """Returns of the episodes that finished in `data` ([num_envs, T])."""
-        reward = data["next", "agents", "reward"].mean(dim=(-2, -1)).cpu()  # [num_envs, T]
-        done = data["next", "done"].reshape(reward.shape).cpu()
-        finished = []
-        for step in range(reward.shape[1]):  # T steps of a batch, vectorised over envs
-            self.running += reward[:, step]
-            ended = done[:, step]
-            finished.extend(self.running[ended].tolist())
-            self.running[ended] = 0.0
-        self.episodes += len(finished)
-        return finished
 
 
 @torch.no_grad()
@@ -279,111 +155,10 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
     if remaining > 0:
         _run(session, remaining, checkpoint, metrics_path, wall_offset)
     save_checkpoint(checkpoint, session_state(session))
-    plot_learning_curve(metrics_path, out_dir / "learning_curve.png")
+    plot_learning_curve(metrics_path, out_dir / "learning_curve")
     return TrainResult(
         out_dir, session.frames - resumed_from, session.frames, session.updates, resumed_from
     )
-
-
-# ----- resuming -------------------------------------------------------------------------------
-
-# Options that a resumed run may change; everything else must match the checkpoint's config.
-RESUME_FREE_FIELDS = ("device", "frames", "out_dir", "progress")
-_CLI_OPTIONS = {"noise": "--env", "robots": "--robots", "seed": "--seed"}
-
-
-def _comparable(config: TrainConfig, drop_cli: bool) -> dict[str, Any]:
-    """Flat {"part.field": value} of the fields a resumed run must keep (delta_max comes from
-    the environment, not the request); `drop_cli` also leaves out --env/--robots/--seed."""
-    dropped = set(RESUME_FREE_FIELDS) | (set(_CLI_OPTIONS) if drop_cli else set())
-    flat = {}
-    for part in ("model", "algorithm", "experiment"):
-        for name, value in dataclasses.asdict(getattr(config, part)).items():
-            if (part, name) == ("model", "delta_max"):
-                continue
-            if part == "experiment" and name in dropped:
-                continue
-            flat[f"{part}.{name}"] = tuple(value) if isinstance(value, list) else value
-    return flat
-
-
-def _preset_name(config: TrainConfig) -> str | None:
-    fields = _comparable(config, drop_cli=True)
-    for name, preset in PRESETS.items():
-        if _comparable(preset, drop_cli=True) == fields:
-            return name
-    return None
-
-
-def resume_differences(stored: TrainConfig, requested: TrainConfig) -> list[str]:
-    """The options in which `requested` differs from a checkpoint's `stored` config, each as
-    `--option OLD (requested NEW)`; [] when the run can be resumed."""
-    differences = []
-    for name, option in _CLI_OPTIONS.items():
-        old, new = getattr(stored.experiment, name), getattr(requested.experiment, name)
-        if old != new:
-            differences.append(f"{option} {old} (requested {new})")
-    old_fields = _comparable(stored, drop_cli=True)
-    new_fields = _comparable(requested, drop_cli=True)
-    changed = [key for key in new_fields if old_fields.get(key) != new_fields[key]]
-    changed += [key for key in old_fields if key not in new_fields]
-    if changed:
-        old_preset, new_preset = _preset_name(stored), _preset_name(requested)
-        if old_preset and new_preset:
-            differences.append(f"--preset {old_preset} (requested {new_preset})")
-        else:
-            shown = [f"{k} {old_fields.get(k)} (requested {new_fields.get(k)})" for k in changed]
-            more = f" and {len(shown) - 3} more settings" if len(shown) > 3 else ""
-            differences.append(", ".join(shown[:3]) + more)
-    return differences
-
-
-def check_resume_config(path: Path, state: dict[str, Any], requested: TrainConfig) -> None:
-    """Raise a one-line `ResumeConfigError` if the checkpoint's run differs from `requested`."""
-    try:
-        stored = TrainConfig.from_dict(state["config"])
-    except (KeyError, TypeError, ValueError) as error:
-        raise CheckpointError(f"{path}: unreadable run config ({error})") from None
-    differences = resume_differences(stored, requested)
-    if differences:
-        raise ResumeConfigError(
-            f"{path} holds a run trained with other options: {'; '.join(differences)}. "
-            "Pass the run's options to resume it, or start a new run with --no-resume "
-            "(which overwrites it) or another --out"
-        )
-
-
-def truncate_metrics(metrics_path: Path, frames: int) -> float:
-    """Keep the metrics rows up to `frames` (a checkpoint's); their last wall_s (0 if none).
-
-    A run stopped between two checkpoints has logged batches past its checkpoint; the resumed
-    run collects those frames again, so their rows go. The file is rewritten atomically (with
-    the current columns, should an older run have written others)."""
-    if not metrics_path.is_file():
-        return 0.0
-    with metrics_path.open(newline="") as handle:
-        reader = csv.DictReader(handle)
-        rows = list(reader)
-        fieldnames = reader.fieldnames
-
-    def frames_of(row: dict[str, str]) -> float:
-        try:
-            return float(row.get("frames") or "nan")
-        except ValueError:
-            return math.nan
-
-    kept = [row for row in rows if frames_of(row) <= frames]
-    if len(kept) < len(rows) or tuple(fieldnames or ()) != METRIC_FIELDS:
-        temporary = metrics_path.with_suffix(".csv.tmp")
-        with temporary.open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, METRIC_FIELDS, extrasaction="ignore", restval="")
-            writer.writeheader()
-            writer.writerows(kept)
-        os.replace(temporary, metrics_path)
-    try:
-        return float(kept[-1]["wall_s"]) if kept else 0.0
-    except (KeyError, TypeError, ValueError):
-        return 0.0
 
 
 # ----- the training loop ----------------------------------------------------------------------
@@ -530,30 +305,3 @@ def _progress(enabled: bool, total: int, initial: int):
     from tqdm.auto import tqdm
 
     return tqdm(total=total, initial=initial, unit="frame", desc="GA-SAC")
-
-
-def plot_learning_curve(metrics_path: Path, png_path: Path) -> Path | None:
-    """Episode return and held-out F reduction against frames (skipped when there is no data)."""
-    if not metrics_path.is_file():
-        return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with metrics_path.open() as handle:
-        rows = list(csv.DictReader(handle))
-
-    def series(name: str) -> tuple[list[float], list[float]]:
-        points = [(float(r["frames"]), float(r[name])) for r in rows if r.get(name)]
-        return [p[0] for p in points], [p[1] for p in points]
-
-    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 3.5))
-    left.plot(*series("episode_return"), ".-", ms=3)
-    left.set(xlabel="frames", ylabel="episode return (mean over agents)", title="training")
-    right.plot(*series("eval_f_reduction"), "o-", ms=3)
-    right.set(xlabel="frames", ylabel="1 − F(T)/F(0)", title="held-out F reduction")
-    figure.tight_layout()
-    figure.savefig(png_path, dpi=120)
-    plt.close(figure)
-    return png_path

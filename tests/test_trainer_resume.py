@@ -131,7 +131,7 @@ def test_resume_with_other_options_is_a_one_line_error(tmp_path) -> None:
     assert (tmp_path / "metrics.csv").read_text() == before  # nothing was appended
 
     # device, frames, out_dir and progress may change; --no-resume starts a new run.
-    from agents.trainer import resume_differences
+    from agents.resume import resume_differences
 
     stored = tiny(tmp_path, 32)
     free = dataclasses.replace(
@@ -143,7 +143,7 @@ def test_resume_with_other_options_is_a_one_line_error(tmp_path) -> None:
 
 
 def test_resume_names_a_changed_preset() -> None:
-    from agents.trainer import resume_differences
+    from agents.resume import resume_differences
 
     paper, small = PRESETS["paper"], PRESETS["cpu-small"]
     assert resume_differences(paper, small) == ["--preset paper (requested cpu-small)"]

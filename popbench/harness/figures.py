@@ -59,19 +59,26 @@ def read_metrics(path: Path, x: str = "frames") -> pd.DataFrame:
     return frame
 
 
-def plot_learning_curves(csv_paths: list[Path], out: Path, x: str = "frames") -> list[Path]:
-    """Every numeric column of the training CSVs against ``x``, one panel per column, one line
-    per file; PNG + PDF. A file that is not such a CSV is a one-line ``ValueRangeError``."""
+def plot_learning_curves(
+    csv_paths: list[Path], out: Path, x: str = "frames", columns: tuple[str, ...] | None = None
+) -> list[Path]:
+    """The training CSVs' ``columns`` (default: every numeric column) against ``x``, one panel
+    per column, one line per file; PNG + PDF (``out.png``, ``out.pdf``). A file that is not such
+    a CSV is a one-line ``ValueRangeError``. ``popbench train`` draws its run's curve with it."""
     frames = {path.stem: read_metrics(path, x) for path in csv_paths}
     plt = pyplot()
-    columns = sorted(
-        {c for f in frames.values() for c in f.select_dtypes("number").columns if c != x}
-    )
+    if columns is None:
+        columns = tuple(
+            sorted(
+                {c for f in frames.values() for c in f.select_dtypes("number").columns if c != x}
+            )
+        )
     fig, axes = plt.subplots(1, len(columns), figsize=(4 * len(columns), 3.4), squeeze=False)
     for ax, column in zip(axes[0], columns, strict=True):
         for label, frame in frames.items():
             if column in frame and x in frame:
-                ax.plot(frame[x], frame[column], label=label)
+                points = frame[[x, column]].dropna()
+                ax.plot(points[x], points[column], ".-", ms=3, label=label)
         ax.set_xlabel(x)
         ax.set_title(column, fontsize="small")
     axes[0, 0].legend(fontsize="small")

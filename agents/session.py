@@ -1,0 +1,103 @@
+"""A GA-SAC training session: env, networks, loss, target updater and optimisers, built from a
+`TrainConfig`, and its checkpoint state (save with `session_state`, load with `restore`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import torch
+from torchrl.envs import TransformedEnv
+from torchrl.objectives import SoftUpdate
+
+from agents.actor import GASACPolicy, HybridActor
+from agents.checkpoint import read_checkpoint
+from agents.config import TrainConfig
+from agents.critic import CentralCritic
+from agents.loss import GASACLoss
+
+
+@dataclasses.dataclass
+class Session:
+    """Everything a run holds (built by `build_session`)."""
+
+    config: TrainConfig
+    env: TransformedEnv
+    actor: HybridActor
+    policy: GASACPolicy
+    loss: GASACLoss
+    updater: SoftUpdate
+    optimisers: dict[str, torch.optim.Optimizer]
+    dims: dict[str, int]
+    frames: int = 0
+    updates: int = 0
+
+
+def make_env(config: TrainConfig, batch_size: int, seed: int, **options: Any):
+    """The synthetic TorchRL env of the experiment (imported lazily: envs pulls torchrl)."""
+    from envs import make_torchrl_env
+
+    experiment = config.experiment
+    return make_torchrl_env(
+        robots=experiment.robots,
+        batch_size=batch_size,
+        noise=experiment.noise,
+        seed=seed,
+        device=experiment.device,
+        poses_per_robot=experiment.poses_per_robot,
+        **options,
+    )
+
+
+def build_session(config: TrainConfig) -> Session:
+    """Env (+ recurrent-state primer), actor, critic, loss, target updater and optimisers."""
+    experiment, algorithm = config.experiment, config.algorithm
+    torch.manual_seed(experiment.seed)
+    base_env = make_env(config, experiment.num_envs, experiment.seed)
+    delta_max = tuple(float(v) for v in base_env.core.delta_max.cpu())
+    config = dataclasses.replace(
+        config, model=dataclasses.replace(config.model, delta_max=delta_max)
+    )
+    observation = base_env.observation_spec["agents", "observation"]
+    dims = {
+        "node": observation["node_features"].shape[-1],
+        "edge": observation["edge_attr"].shape[-1],
+        "agents": experiment.robots,
+        "choices": base_env.dims.edges + 1,
+    }
+    actor = HybridActor(dims["node"], dims["edge"], config.model).to(experiment.device)
+    critic = CentralCritic(dims["node"], dims["edge"], dims["agents"], config.model)
+    policy = GASACPolicy(actor)
+    env = TransformedEnv(base_env, policy.primer(dims["agents"], dims["choices"]))
+    loss = GASACLoss(actor, critic.to(experiment.device), algorithm).to(experiment.device)
+    updater = SoftUpdate(loss, tau=algorithm.tau)
+    optimisers = {
+        "actor": torch.optim.Adam(loss.actor_parameters(), lr=algorithm.actor_lr),
+        "critic": torch.optim.Adam(loss.critic_parameters(), lr=algorithm.critic_lr),
+        "alpha": torch.optim.Adam(loss.alpha_parameters(), lr=algorithm.alpha_lr),
+    }
+    return Session(config, env, actor, policy, loss, updater, optimisers, dims)
+
+
+def session_state(session: Session) -> dict[str, Any]:
+    return {
+        "config": session.config.to_dict(),
+        "dims": session.dims,
+        "actor": session.actor.state_dict(),
+        "loss": session.loss.state_dict(),
+        "optimisers": {name: opt.state_dict() for name, opt in session.optimisers.items()},
+        "frames": session.frames,
+        "updates": session.updates,
+    }
+
+
+def restore(session: Session, checkpoint: Path | dict[str, Any]) -> None:
+    """Load networks, optimisers and progress from a checkpoint (path or read state)."""
+    state = checkpoint
+    if not isinstance(state, dict):
+        state = read_checkpoint(checkpoint, session.config.experiment.device)
+    session.loss.load_state_dict(state["loss"])
+    for name, optimiser in session.optimisers.items():
+        optimiser.load_state_dict(state["optimisers"][name])
+    session.frames, session.updates = int(state["frames"]), int(state["updates"])
