@@ -52,7 +52,8 @@ def test_interrupted_run_resumes_without_recomputing_finished_cells(tmp_path):
     assert [row["robots"] for row in rows] == [0, 1, 2, 3, 4]
     assert len(list((tmp_path / "cells").glob("*.json"))) == 5
     stored = json.loads(next((tmp_path / "cells").glob("*.json")).read_text())
-    assert set(stored) == {"spec", "row"}
+    assert set(stored) == {"spec", "row", "measured"}
+    assert stored["measured"]["executor"] == "serial" and stored["measured"]["jobs"] == 1
 
 
 def test_paper_numbers_transcribed():

@@ -123,9 +123,29 @@ class CellCache:
         except (json.JSONDecodeError, KeyError):
             return None  # a torn write from an older interrupted run: recompute it
 
-    def put(self, spec: Mapping[str, Any], row: Mapping[str, Any]) -> None:
-        """Store a finished cell atomically (write a temporary file, then rename)."""
+    def measured(self, spec: Mapping[str, Any]) -> dict[str, Any] | None:
+        """How the cached cell's time was measured (executor, jobs, cores, threads), or None
+        (not cached, or cached before this was recorded)."""
         path = self._path(spec)
-        temporary = path.with_suffix(".tmp")
-        temporary.write_text(json.dumps({"spec": spec, "row": row}, indent=1, default=float))
+        try:
+            return json.loads(path.read_text()).get("measured")
+        except (OSError, json.JSONDecodeError, AttributeError):
+            return None
+
+    def put(
+        self,
+        spec: Mapping[str, Any],
+        row: Mapping[str, Any],
+        *,
+        measured: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Store a finished cell atomically (write a temporary file, then rename); ``measured``
+        says how its time was measured. Safe from concurrent workers: the temporary file's name
+        is unique to the writing process."""
+        path = self._path(spec)
+        temporary = path.with_suffix(f".{os.getpid()}.tmp")
+        content: dict[str, Any] = {"spec": spec, "row": row}
+        if measured is not None:
+            content["measured"] = measured
+        temporary.write_text(json.dumps(content, indent=1, default=float))
         os.replace(temporary, path)

@@ -10,6 +10,7 @@ import sys
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 _PACKAGES = (
     "popbench",
@@ -58,16 +59,21 @@ def _git_commit() -> str | None:
 
 
 def write_manifest(
-    folder: str | Path, command: list[str] | None = None, wall_s: float | None = None
+    folder: str | Path,
+    command: list[str] | None = None,
+    wall_s: float | None = None,
+    execution: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``manifest.json`` into ``folder`` and return its path; ``wall_s`` is the time of
-    the invocation that wrote it (cells reused from the cache cost nothing)."""
+    the invocation that wrote it (cells reused from the cache cost nothing); ``execution`` how
+    its cells ran (:func:`popbench.harness.runner.execution_summary`)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     manifest = {
         "command": " ".join(command if command is not None else ["popbench", *sys.argv[1:]]),
         "written": datetime.now(UTC).isoformat(timespec="seconds"),
         "wall_s": None if wall_s is None else round(wall_s, 1),
+        "execution": execution,
         "git_commit": _git_commit(),
         "python": platform.python_version(),
         "packages": {name: _version(name) for name in _PACKAGES},

@@ -18,9 +18,10 @@ import pandas as pd
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, reports
 from popbench.harness.cache import CellCache, provenance
+from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table2_cell
-from popbench.harness.runner import Spec, run_cells
+from popbench.harness.runner import Spec, execution_summary, run_cells
 from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.outliers import inject_outliers, precision_recall
@@ -108,15 +109,22 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
 
 
 def run_outliers(
-    config: OutliersConfig, *, progress: bool = True, fresh: bool = False
+    config: OutliersConfig,
+    *,
+    progress: bool = True,
+    fresh: bool = False,
+    execution: Execution | None = None,
 ) -> pd.DataFrame:
-    """Compute (or reuse; all recomputed if ``fresh``) every cell; write ``outliers.csv``,
-    ``.md``, ``.tex`` and the manifest. The datasets and team size are checked first."""
+    """Compute (or reuse; all recomputed if ``fresh``) every cell through ``execution``
+    (default: serially in this process); write ``outliers.csv``, ``.md``, ``.tex`` and the
+    manifest. The datasets and team size are checked first."""
     started = time.perf_counter()
     problems.check_inputs(config.datasets, (config.robots,))
     specs = cell_specs(config)
+    execution = execution or Execution.serial()
+    cache = CellCache(config.out / "cells")
     rows = run_cells(
-        specs, compute_cell, CellCache(config.out / "cells"), progress=progress, fresh=fresh
+        specs, compute_cell, cache, execution=execution, progress=progress, fresh=fresh
     )
     frame = pd.DataFrame(rows)
     paper = [
@@ -129,5 +137,9 @@ def run_outliers(
     frame.to_csv(config.out / "outliers.csv", index=False, float_format="%.10g")
     (config.out / "outliers.md").write_text(reports.outliers_markdown(frame))
     (config.out / "outliers.tex").write_text(reports.outliers_latex(frame))
-    write_manifest(config.out, wall_s=time.perf_counter() - started)
+    write_manifest(
+        config.out,
+        wall_s=time.perf_counter() - started,
+        execution=execution_summary(execution, cache, specs),
+    )
     return frame

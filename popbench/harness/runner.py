@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import time
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -15,10 +18,12 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from popbench.harness.cache import CellCache
+from popbench.harness.cache import CellCache, code_fingerprint
+from popbench.harness.executors import CellTask, Execution, SerialExecutor, make_executor
 
 Spec = Mapping[str, Any]
 Row = dict[str, Any]
+RUNNING_SHOWN = 3  # running cells named in the progress bar; more are counted
 
 
 def describe(spec: Spec) -> str:
@@ -34,26 +39,48 @@ def describe(spec: Spec) -> str:
     return " ".join(part for part in parts if part)
 
 
+def _running(labels: list[str]) -> str:
+    shown = ", ".join(labels[:RUNNING_SHOWN])
+    more = len(labels) - RUNNING_SHOWN
+    return shown + (f" +{more}" if more > 0 else "") if labels else "cells"
+
+
 def run_cells(
     specs: Sequence[Spec],
     compute: Callable[[Spec], Row],
     cache: CellCache,
     *,
+    execution: Execution | None = None,
     console: Console | None = None,
     progress: bool = True,
     fresh: bool = False,
 ) -> list[Row]:
-    """Rows of all ``specs`` in order: cached rows are reused, the others computed and cached
-    one by one (so an interrupted run loses at most the cell in flight). ``fresh`` ignores the
-    cache: every cell is recomputed and its cached file overwritten."""
+    """Rows of all ``specs`` in order: cached rows are reused, the others computed by the
+    ``execution``'s executor (default: serially in this process) and cached as each finishes
+    (so an interrupted run loses at most the cells in flight). ``fresh`` ignores the cache:
+    every cell is recomputed and its cached file overwritten.
+
+    For the process and Ray executors ``compute`` must be a module-level function (it is sent
+    to the workers by name). Each cached file also records how its time was measured
+    (:meth:`Execution.record`: executor, jobs, cores, threads).
+    """
+    execution = execution or Execution.serial()
     rows: list[Row | None] = [None if fresh else cache.get(spec) for spec in specs]
-    todo = [k for k, row in enumerate(rows) if row is None]
+    todo = deque(k for k, row in enumerate(rows) if row is None)
+    computed = len(todo)
     console = console or Console(stderr=True)
     if len(todo) < len(specs):
         console.print(
             f"[dim]{len(specs) - len(todo)} of {len(specs)} cells already finished "
             f"(cached in {cache.folder})[/dim]"
         )
+    if not todo:
+        return [row for row in rows if row is not None]
+    executor = make_executor(execution, len(todo))
+    serial = isinstance(executor, SerialExecutor)
+    measured = execution.record(executor.workers)
+    code = None if serial else code_fingerprint()
+    folder = cache.folder if executor.writes_cache else None
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -62,12 +89,54 @@ def run_cells(
         TextColumn("eta"),
         TimeRemainingColumn(),
     )
-    with Progress(*columns, console=console, disable=not progress or not todo) as bar:
-        task = bar.add_task("cells", total=len(todo))
-        for k in todo:
-            bar.update(task, description=describe(specs[k]))
-            row = compute(specs[k])
-            cache.put(specs[k], row)
-            rows[k] = row
-            bar.advance(task)
+    pending: dict[Any, int] = {}
+    started = time.perf_counter()
+    failed = True
+    try:
+        with Progress(*columns, console=console, disable=not progress) as bar:
+            task = bar.add_task("cells", total=len(todo))
+            while todo or pending:
+                while todo and len(pending) < executor.workers:
+                    k = todo.popleft()
+                    labels = [describe(specs[j]) for j in pending.values()]
+                    bar.update(task, description=_running([*labels, describe(specs[k])]))
+                    cell = CellTask(compute, specs[k], folder, execution.threads, code, measured)
+                    pending[executor.submit(cell)] = k
+                for handle in executor.wait(list(pending)):
+                    k = pending.pop(handle)
+                    row = executor.result(handle)
+                    if not executor.writes_cache:
+                        cache.put(specs[k], row, measured=measured)
+                    rows[k] = row
+                    bar.advance(task)
+                    bar.update(
+                        task, description=_running([describe(specs[j]) for j in pending.values()])
+                    )
+        failed = False
+    finally:
+        executor.close(cancel=failed)
+    if not serial:
+        console.print(
+            f"[dim]{computed} cells, {executor.workers} at once "
+            f"({execution.executor}): {time.perf_counter() - started:.1f} s[/dim]"
+        )
     return [row for row in rows if row is not None]
+
+
+def execution_summary(execution: Execution, cache: CellCache, specs: Sequence[Spec]) -> dict:
+    """The manifest's ``execution`` block: how this invocation ran (executor, jobs, threads,
+    cores, address) and how the times of the table's cells were measured — ``beside_others``
+    counts the cells timed while other cells ran at once on the same machine or cluster
+    (``jobs`` > 1), whose wall and parallel times include that contention; ``unrecorded`` the
+    cells cached before this was recorded."""
+    jobs = 1 if execution.executor == "serial" else execution.jobs or os.cpu_count() or 1
+    records = [cache.measured(spec) for spec in specs]
+    beside = sum(1 for record in records if record is not None and record.get("jobs", 1) > 1)
+    return {
+        **execution.record(jobs),
+        "cells": len(specs),
+        "beside_others": beside,
+        "unrecorded": sum(1 for record in records if record is None),
+        "note": f"{beside} of {len(specs)} cells were timed while other cells ran at once "
+        "(jobs > 1): their wall_s and parallel_s include that contention",
+    }

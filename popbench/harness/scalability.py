@@ -14,9 +14,10 @@ import pandas as pd
 
 from popbench.harness import problems, table1
 from popbench.harness.cache import CellCache, provenance
+from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.plotting import pyplot, save_figure
-from popbench.harness.runner import Spec, run_cells
+from popbench.harness.runner import Spec, execution_summary, run_cells
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
 METHODS = ("mm-pgo", "prop-v1", "prop-v2")
@@ -55,30 +56,36 @@ def cell_specs(config: ScalabilityConfig) -> list[Spec]:
 
 
 def run_scalability(
-    config: ScalabilityConfig, *, progress: bool = True, fresh: bool = False
+    config: ScalabilityConfig,
+    *,
+    progress: bool = True,
+    fresh: bool = False,
+    execution: Execution | None = None,
 ) -> pd.DataFrame:
-    """Compute (or reuse; all recomputed if ``fresh``) every cell; write ``scalability.csv``,
+    """Compute (or reuse; all recomputed if ``fresh``) every cell through ``execution``
+    (default: serially in this process); write ``scalability.csv``,
     ``scalability.png``/``.pdf``. The dataset and team sizes are checked first."""
     started = time.perf_counter()
     problems.check_inputs((config.dataset,), config.robots)
     specs = cell_specs(config)
     cache = CellCache(config.out / "cells")
-    optimum = run_cells(
-        [table1.optimum_spec(config.dataset)],
-        table1.compute_optimum,
-        cache,
-        progress=progress,
-        fresh=fresh,
-    )[0]["F_star"]
-    frame = pd.DataFrame(
-        run_cells(specs, table1.compute_cell, cache, progress=progress, fresh=fresh)
+    execution = execution or Execution.serial()
+    everything = [table1.optimum_spec(config.dataset), *specs]
+    computed = run_cells(
+        everything, table1.compute, cache, execution=execution, progress=progress, fresh=fresh
     )
+    optimum = computed[0]["F_star"]
+    frame = pd.DataFrame(computed[1:])
     frame["F_star"] = optimum
     frame["gap"] = frame["F"] / optimum - 1.0
     config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "scalability.csv", index=False, float_format="%.10g")
     scalability_figure(frame, config.out / "scalability")
-    write_manifest(config.out, wall_s=time.perf_counter() - started)
+    write_manifest(
+        config.out,
+        wall_s=time.perf_counter() - started,
+        execution=execution_summary(execution, cache, everything),
+    )
     return frame
 
 

@@ -17,9 +17,10 @@ import pandas as pd
 
 from popbench.harness import problems, reports
 from popbench.harness.cache import CellCache, provenance
+from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table1_cell
-from popbench.harness.runner import Spec, run_cells
+from popbench.harness.runner import Spec, execution_summary, run_cells
 from popbench.methods import Budget, get_method
 
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
@@ -88,6 +89,11 @@ def compute_optimum(spec: Spec) -> dict[str, Any]:
     }
 
 
+def compute(spec: Spec) -> dict[str, Any]:
+    """An optimum (``experiment`` "optimum") or a table cell: what every executor runs."""
+    return compute_optimum(spec) if spec["experiment"] == "optimum" else compute_cell(spec)
+
+
 def compute_cell(spec: Spec) -> dict[str, Any]:
     """Run one method on one split dataset and measure it."""
     problem = problems.distributed_problem(
@@ -114,10 +120,17 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
     }
 
 
-def run_table1(config: Table1Config, *, progress: bool = True, fresh: bool = False) -> pd.DataFrame:
+def run_table1(
+    config: Table1Config,
+    *,
+    progress: bool = True,
+    fresh: bool = False,
+    execution: Execution | None = None,
+) -> pd.DataFrame:
     """Compute (or reuse; all recomputed if ``fresh``) every cell, then write ``table1.csv``,
     ``table1.md``, ``table1.tex``, ``table1.png``/``.pdf`` and ``manifest.json`` into
-    ``config.out``.
+    ``config.out``. The optima and the cells run together through ``execution`` (default:
+    serially in this process).
 
     Every dataset is loaded and every team size checked against its poses before anything is
     computed (:func:`popbench.harness.problems.check_inputs`).
@@ -126,17 +139,13 @@ def run_table1(config: Table1Config, *, progress: bool = True, fresh: bool = Fal
     problems.check_inputs(config.datasets, config.robots)
     specs = cell_specs(config)
     cache = CellCache(config.out / "cells")
-    optima = {
-        row["dataset"]: row["F_star"]
-        for row in run_cells(
-            [optimum_spec(d) for d in config.datasets],
-            compute_optimum,
-            cache,
-            progress=progress,
-            fresh=fresh,
-        )
-    }
-    rows = run_cells(specs, compute_cell, cache, progress=progress, fresh=fresh)
+    execution = execution or Execution.serial()
+    everything = [*(optimum_spec(d) for d in config.datasets), *specs]
+    computed = run_cells(
+        everything, compute, cache, execution=execution, progress=progress, fresh=fresh
+    )
+    optima = {row["dataset"]: row["F_star"] for row in computed[: len(config.datasets)]}
+    rows = computed[len(config.datasets) :]
     frame = pd.DataFrame(rows)
     frame["F_star"] = frame["dataset"].map(optima)
     frame["gap"] = frame["F"] / frame["F_star"] - 1.0
@@ -172,5 +181,9 @@ def run_table1(config: Table1Config, *, progress: bool = True, fresh: bool = Fal
     (config.out / "table1.md").write_text(reports.table1_markdown(frame))
     (config.out / "table1.tex").write_text(reports.table1_latex(frame))
     reports.table1_figure(frame, config.out / "table1")
-    write_manifest(config.out, wall_s=time.perf_counter() - started)
+    write_manifest(
+        config.out,
+        wall_s=time.perf_counter() - started,
+        execution=execution_summary(execution, cache, everything),
+    )
     return frame
