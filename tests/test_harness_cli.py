@@ -117,7 +117,7 @@ def test_an_edited_graph_file_is_recomputed_and_fresh_recomputes(tmp_path, capsy
     assert code == 0, err
     first = f()
     code, _, err = _run(capsys, *args)
-    assert code == 0 and "1 of 1 cells already finished" in err
+    assert code == 0 and "2 of 2 cells already finished" in err  # the optimum and the cell
     ring_g2o(graph, dx="0.951")  # one measurement edited (and the size changed)
     code, _, err = _run(capsys, *args)
     assert code == 0, err

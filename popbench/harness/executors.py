@@ -269,3 +269,27 @@ def make_executor(execution: Execution, cells: int) -> Executor:
     if execution.executor == "serial" or workers <= 1:
         return SerialExecutor()
     return ProcessExecutor(workers, execution.threads)
+
+
+# The help of the command-line options that build an Execution (popbench run ...).
+JOBS_HELP = (
+    "Cells computed at once (default: this machine's cores; with --executor ray: the cluster's "
+    "CPUs). Each cell runs in its own worker process with --threads threads; --jobs 1 computes "
+    "them one after another in this process. F, gap, iterations and every other non-time "
+    "column do not depend on it; the times of cells run side by side include their contention "
+    "(manifest.json, execution.beside_others)."
+)
+EXECUTOR_HELP = (
+    "process: local worker processes; serial: this process; ray: one Ray task per cell, on the "
+    "cluster at --address or on a local Ray instance (pip install 'popbench[ray]'). All three "
+    "run the same cell function and write the same cache (OUT/cells/)."
+)
+ADDRESS_HELP = (
+    "Ray cluster to submit the cells to (--executor ray): HEAD:6379 after `ray start --head` on "
+    "the head node, or 'auto' for the cluster this machine joined. Default: a local Ray "
+    "instance with --jobs CPUs, shut down after the run."
+)
+THREADS_HELP = (
+    "BLAS / OpenMP / torch threads per cell (pinned whatever OMP_NUM_THREADS says: results of "
+    "unconverged cells depend on the thread count; the committed tables use 1)."
+)
