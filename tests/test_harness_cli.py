@@ -172,6 +172,16 @@ def test_outliers_and_scalability_reject_bad_inputs_before_any_work(tmp_path, ca
     assert not out.exists()
 
 
+def test_outliers_rejects_unknown_candidates_before_any_work(tmp_path, capsys):
+    graph = ring_g2o(tmp_path / "u.g2o")
+    out = tmp_path / "D"
+    args = ("run", "outliers", "--datasets", graph, "--robots", "1", "--candidates", "odometry")
+    code, _, err = _run(capsys, *args, "--methods", "mm-pgo", "--out", out)
+    assert code == 2
+    _one_error_line(err, "invalid candidates 'odometry'")
+    assert not out.exists()
+
+
 @pytest.fixture
 def captured_table1(monkeypatch):
     """The Table1Config that `popbench run table1` would run (nothing is computed)."""

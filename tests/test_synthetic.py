@@ -1,4 +1,4 @@
-"""Synthetic multi-robot problems (paper §IV-A) and outlier injection (§IV-B)."""
+"""Synthetic multi-robot problems (paper §IV-A); outlier injection is in test_outliers.py."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from popbench import se2
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, odometry_composition
 from popbench.objective import residuals
-from popbench.outliers import candidate_edges, inject_outliers, precision_recall, with_outliers
 from popbench.synthetic import MIN_LOOP_GAP, NOISE_LEVELS, make_problem
 
 
@@ -98,64 +97,3 @@ def test_invalid_arguments(kwargs):
     with pytest.raises(ValueRangeError) as error:
         make_problem(**kwargs)
     assert "\n" not in str(error.value)
-
-
-# ----- outliers --------------------------------------------------------------------------------
-
-
-def test_inject_outliers_count_kinds_and_untouched_edges():
-    problem = make_problem(robots=7, seed=0)
-    graph = problem.graph
-    candidates = candidate_edges(graph)
-    kinds = graph.kinds[candidates]
-    assert np.all(kinds != EdgeKind.ODOMETRY) and candidates.size == np.sum(kinds >= 1)
-    corrupted, mask = inject_outliers(problem, 0.2, seed=5)
-    assert mask.dtype == bool and mask.sum() == round(0.2 * candidates.size)
-    assert np.all(np.isin(np.flatnonzero(mask), candidates))
-    changed = np.any(corrupted.measurements != graph.measurements, axis=1)
-    np.testing.assert_array_equal(changed, mask)
-    np.testing.assert_array_equal(corrupted.information, graph.information)
-    np.testing.assert_array_equal(corrupted.poses, graph.poses)
-    again, mask_again = inject_outliers(graph, 0.2, seed=5)
-    np.testing.assert_array_equal(again.measurements, corrupted.measurements)
-    np.testing.assert_array_equal(mask_again, mask)
-    assert inject_outliers(graph, 0.0, seed=5)[1].sum() == 0
-
-
-def test_outlier_distribution():
-    graph = make_problem(robots=40, seed=1, loop_ratio=0.3).graph
-    mean_length = np.mean(np.linalg.norm(graph.measurements[:, :2], axis=1))
-    corrupted, mask = inject_outliers(graph, 1.0, seed=2)
-    z = corrupted.measurements[mask]
-    assert mask.sum() > 500
-    assert abs(np.std(z[:, :2]) / (0.5 * mean_length) - 1.0) < 0.1
-    assert z[:, 2].min() >= -np.pi and z[:, 2].max() < np.pi
-    assert abs(np.std(z[:, 2]) / (np.pi / np.sqrt(3)) - 1.0) < 0.1  # std of U(−π, π)
-
-
-def test_single_robot_outliers_only_loops(small_graph):
-    _, mask = inject_outliers(small_graph, 1.0, seed=0)
-    np.testing.assert_array_equal(mask, small_graph.kinds == EdgeKind.LOOP)
-
-
-def test_with_outliers_sets_mask_and_recomposes_odometry():
-    problem = make_problem(robots=5, seed=3)
-    corrupted = with_outliers(problem, 1.0, seed=1)
-    assert corrupted.outlier_mask.sum() == candidate_edges(problem.graph).size
-    np.testing.assert_allclose(corrupted.graph.poses, corrupted.graph.odometry_initial())
-    # the inter-robot relative edges are in the chain, so the initial estimate changed
-    assert not np.allclose(corrupted.graph.poses, problem.graph.poses)
-    with pytest.raises(ValueRangeError):
-        inject_outliers(problem, 1.5, seed=0)
-
-
-def test_precision_recall_hand_made():
-    flagged = np.array([True, True, False, False, True, False])
-    truth = np.array([True, False, True, False, False, True])
-    assert precision_recall(flagged, truth) == pytest.approx((1 / 3, 1 / 3))
-    assert precision_recall(truth, truth) == (1.0, 1.0)
-    nothing = np.zeros(6, dtype=bool)
-    assert precision_recall(nothing, truth) == (1.0, 0.0)  # no flags: precision 1 by convention
-    assert precision_recall(flagged, nothing) == (0.0, 1.0)  # no outliers: recall 1
-    with pytest.raises(ValueRangeError):
-        precision_recall(flagged[:3], truth)

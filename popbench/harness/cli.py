@@ -172,6 +172,11 @@ def outliers_command(
     init: str = typer.Option(
         "odometry", help="odometry | chordal (made from the corrupted data) | given (the file's)."
     ),
+    candidates: str = typer.Option(
+        "loops",
+        help="Edges that may be corrupted: loops (loop closures; odometry, incl. cut odometry, "
+        "never) | paper (loop closures + every inter-robot edge: breaks the odometry start).",
+    ),
     out: Path = typer.Option(Path("results/outliers"), help="Output folder."),
     fresh: bool = typer.Option(False, "--fresh", help=FRESH_HELP),
 ) -> None:
@@ -181,6 +186,7 @@ def outliers_command(
     size checked before anything is computed.
     """
     from popbench.harness.outliers import OutliersConfig, run_outliers
+    from popbench.outliers import CANDIDATE_SETS
 
     config = OutliersConfig(
         datasets=_names(datasets, None, "dataset"),
@@ -191,6 +197,7 @@ def outliers_command(
         iterations=iterations,
         init=_init(init),
         kernel=_names(kernel, ("huber", "gm", "welsch"), "kernel")[0],
+        candidates=_names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
         out=out,
     )
     frame = run_outliers(config, fresh=fresh)
