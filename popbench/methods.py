@@ -74,6 +74,7 @@ Method = Callable[..., Result]
 
 METHODS: dict[str, str] = {
     "lm": "popbench.solvers.lm:solve",
+    "gnc": "popbench.solvers.gnc:solve",
     "cc-pgo": "baselines.cc_pgo:solve",
     "ml-pgo": "baselines.ml_pgo:solve",
     "mm-pgo": "baselines.mm_pgo:solve",

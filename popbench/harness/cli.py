@@ -164,7 +164,7 @@ def table1_command(
 def outliers_command(
     rate: str = typer.Option("0.1", help="Outlier rates (fractions), e.g. 0.025,0.05,0.1."),
     datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
-    methods: str = typer.Option("prop-v1,mm-pgo", help="Methods (need an inlier mask)."),
+    methods: str = typer.Option("prop-v1,mm-pgo,gnc", help="Methods (need an inlier mask)."),
     robots: int = typer.Option(7, min=1, help="Team size."),
     seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
     iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),

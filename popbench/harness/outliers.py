@@ -29,7 +29,7 @@ from popbench.outliers import candidate_mask, inject_outliers, precision_recall
 
 DATASETS = ("intel", "mit", "csail")
 RATES = (0.025, 0.05, 0.1)
-METHODS = ("prop-v1", "mm-pgo")
+METHODS = ("prop-v1", "mm-pgo", "gnc")
 
 
 @dataclasses.dataclass(frozen=True)

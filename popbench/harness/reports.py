@@ -21,6 +21,7 @@ _LABELS = {
     "prop-v1": "Prop-V1",
     "prop-v2": "Prop-V2",
     "lm": "LM",
+    "gnc": "GNC",
 }
 # (row label, our column, paper index in (F, time), lower is better)
 _TABLE1_METRICS = (
@@ -196,7 +197,7 @@ def outliers_markdown(frame: pd.DataFrame) -> str:
     note = (
         f"\nMean ± standard deviation over {seeds} seed(s); the paper's value in parentheses. "
         "Precision and recall score the edges a method flags as outliers against the injected "
-        "ones.\n"
+        "ones, over the corrupted candidate set's edges.\n"
     )
     return "\n".join(lines) + "\n" + note
 

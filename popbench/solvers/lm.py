@@ -174,26 +174,38 @@ def _vertex_order(graph: PoseGraph) -> np.ndarray:
 
 
 def _linearise(
-    graph: PoseGraph, poses: np.ndarray, rotation_cost: str
+    graph: PoseGraph,
+    poses: np.ndarray,
+    rotation_cost: str,
+    sqrt_weights: np.ndarray | None = None,
 ) -> tuple[objective.Linearisation, float]:
-    """Whitened residuals and Jacobians of the minimised cost, and ``F`` (eq. 1) at ``poses``.
+    """Whitened residuals and Jacobians of the minimised cost, and ``F`` (eq. 1, unweighted) at
+    ``poses``.
 
     ``"geodesic"``: ``F`` itself. ``"chordal"``: ``F_chordal``, whose rotation residual is
     ``4κ(1 − cos r_θ) = (2√(2κ) sin(r_θ/2))²``, derivative ``√2 cos(r_θ/2) · d(√κ r_θ)``.
+    ``sqrt_weights`` (``(M,)``, optional) scales each edge's residual and Jacobian rows by
+    ``√w_e``, so the minimised cost is ``Σ_e w_e ‖e_e‖²``.
     """
     lin = objective.linearise(graph, poses)
     value = float(np.sum(lin.errors**2))
-    if rotation_cost == "geodesic":
-        return lin, value
-    kappa, _ = objective.weights(graph.information)
-    half_angle = 0.5 * lin.errors[:, 2] / np.sqrt(kappa)  # r_θ / 2
-    errors = lin.errors.copy()
-    errors[:, 2] = 2.0 * np.sqrt(2.0 * kappa) * np.sin(half_angle)
-    factor = np.sqrt(2.0) * np.cos(half_angle)[:, None]
-    jac_tail, jac_head = lin.jac_tail.copy(), lin.jac_head.copy()
-    jac_tail[:, 2] *= factor
-    jac_head[:, 2] *= factor
-    return objective.Linearisation(errors, jac_tail, jac_head), value
+    if rotation_cost == "chordal":
+        kappa, _ = objective.weights(graph.information)
+        half_angle = 0.5 * lin.errors[:, 2] / np.sqrt(kappa)  # r_θ / 2
+        errors = lin.errors.copy()
+        errors[:, 2] = 2.0 * np.sqrt(2.0 * kappa) * np.sin(half_angle)
+        factor = np.sqrt(2.0) * np.cos(half_angle)[:, None]
+        jac_tail, jac_head = lin.jac_tail.copy(), lin.jac_head.copy()
+        jac_tail[:, 2] *= factor
+        jac_head[:, 2] *= factor
+        lin = objective.Linearisation(errors, jac_tail, jac_head)
+    if sqrt_weights is not None:
+        lin = objective.Linearisation(
+            lin.errors * sqrt_weights[:, None],
+            lin.jac_tail * sqrt_weights[:, None, None],
+            lin.jac_head * sqrt_weights[:, None, None],
+        )
+    return lin, value
 
 
 def solve_graph(
@@ -205,9 +217,10 @@ def solve_graph(
     relative_tolerance: float = 1e-10,
     gradient_tolerance: float = 1e-9,
     seconds: float | None = None,
+    edge_weights: np.ndarray | None = None,
 ) -> LMOutcome:
     """Minimise ``F`` (or ``F_chordal``) from ``poses0`` by sparse Levenberg–Marquardt, pose 0
-    fixed.
+    fixed; with ``edge_weights`` the weighted cost ``Σ_e w_e ‖e_e‖²`` instead.
 
     Args:
         graph: the pose graph (connected; its own ``poses`` are not used).
@@ -218,16 +231,28 @@ def solve_graph(
         gradient_tolerance: stop when ``‖∇C‖_∞`` over the free poses is at most this (units
             of the cost per metre / radian).
         seconds: optional wall-clock cap [s], checked before each step.
+        edge_weights: optional ``(M,)`` per-edge weights ``w_e ≥ 0`` (dimensionless) of the
+            minimised cost, e.g. robust IRLS / GNC weights; the stopping tests apply to the
+            weighted cost. Edges of weight 0 drop out: the weighted graph must still pin every
+            pose (connected through positive weights).
 
     Returns:
-        :class:`LMOutcome` (its ``history`` is always ``F``, eq. 1).
+        :class:`LMOutcome` (its ``history`` is always ``F``, eq. 1, unweighted).
     """
     if rotation_cost not in ROTATION_COSTS:
         raise ValueRangeError("rotation cost", rotation_cost, " | ".join(ROTATION_COSTS))
+    sqrt_weights = None
+    if edge_weights is not None:
+        edge_weights = np.asarray(edge_weights, dtype=np.float64)
+        if edge_weights.shape != (graph.num_edges,) or np.any(~(edge_weights >= 0.0)):
+            raise ValueRangeError(
+                "edge weights", edge_weights.shape, f"({graph.num_edges},) values >= 0"
+            )
+        sqrt_weights = np.sqrt(edge_weights)
     started = time.perf_counter()
     poses = np.array(poses0, dtype=np.float64)
     poses[:, 2] = se2.wrap(poses[:, 2])
-    lin, value = _linearise(graph, poses, rotation_cost)
+    lin, value = _linearise(graph, poses, rotation_cost, sqrt_weights)
     history = [value]
     if graph.num_poses < 2:
         return LMOutcome(poses, np.array(history), 0, True, 0, 0.0)
@@ -247,7 +272,7 @@ def solve_graph(
         step = -lu.solve(gradient)
         model_decrease = float(-gradient @ step + damping * (step * scale) @ step)
         trial = normal.update(poses, step)
-        trial_lin, trial_value = _linearise(graph, trial, rotation_cost)
+        trial_lin, trial_value = _linearise(graph, trial, rotation_cost, sqrt_weights)
         trial_cost = float(np.sum(trial_lin.errors**2))
         if trial_cost < cost:
             gain = (cost - trial_cost) / model_decrease

@@ -1,0 +1,213 @@
+"""Graduated non-convexity (GNC; Yang, Antonante, Tzoumas & Carlone, RA-L 2020) on the project's
+sparse LM: the centralised robust reference (method ``"gnc"``), the floor of Table II.
+
+Robust cost over the whitened residuals of eq. 1 (:func:`popbench.objective.linearise`),
+``r_e² = ‖e_e‖² = κ_e r_θ² + τ_e ‖r_t‖²`` (dimensionless)::
+
+    min_x Σ_e ρ(r_e²),   TLS: ρ(r²) = min(r², c̄²)   GM: ρ(r²) = c̄² r² / (c̄² + r²)
+
+with the inlier threshold ``c̄² = χ²₃(0.99) = 11.345`` (:data:`THRESHOLD`): an inlier whose
+noise matches its information has ``r² ≈ χ²₃`` (three whitened coordinates; exactly for
+isotropic translation information), so 1 % of the inliers lie beyond it.
+
+GNC replaces ρ by a surrogate ``ρ_μ`` that is convex for one extreme of ``μ`` and equals ρ at
+the other, and alternates (Black–Rangarajan duality) a weighted least-squares solve with a
+closed-form weight update, moving μ by ``mu_step`` (1.4, GTSAM's default) after each round:
+
+* **TLS** (default): ``μ₀ = c̄² / (2 r²_max − c̄²)``, ``μ ← 1.4 μ`` (towards TLS as μ → ∞);
+  ``w = 1`` if ``r² ≤ μ/(μ+1) c̄²``, ``w = 0`` if ``r² ≥ (μ+1)/μ c̄²``, else
+  ``w = c̄ √(μ(μ+1)) / r − μ``.
+* **GM** (Geman–McClure): ``μ₀ = 2 r²_max / c̄²``, ``μ ← max(1, μ / 1.4)`` (GM itself at μ = 1);
+  ``w = (μ c̄² / (r² + μ c̄²))²``.
+
+``r²_max`` is the largest residual over the edges not known to be inliers at the non-robust
+solution (all weights 1, the first LM solve), as in the paper's Remark 5 (GTSAM takes it at
+the start instead, over every factor). If ``2 r²_max ≤ c̄²`` (TLS) nothing can be an outlier
+and that solution is returned.
+
+One round: weights from the current estimate and μ, then LM (:func:`~popbench.solvers.lm.
+solve_graph` with ``edge_weights``) on ``Σ w_e r_e²``. Like GTSAM's ``GncOptimizer`` every inner
+solve starts from the inner start (``warm_start=False``), not from the last round's estimate.
+Stopping (GTSAM's rules): the relative change of the weighted cost between rounds is below
+``1e-5``; TLS: every weight is within ``1e-4`` of 0 or 1; GM: the round ran at μ = 1; or the
+budget's rounds are spent.
+
+Known inliers (weight 1 throughout): the odometry edges, kinds ODOMETRY and INTER_RELATIVE
+(the outlier model of :mod:`popbench.outliers` never corrupts them by default); they also keep
+the weighted graph connected when loop closures get weight 0.
+
+Inner start: the problem's own estimate by default (``inner_start="problem"``; in Table II
+the odometry composition, which the default outlier model leaves uncorrupted), or the chordal
+initialisation of the (corrupted) graph (``"chordal"``): the outliers distort that start, and
+GNC from it converges to another solution (measured in ``docs/outliers.md``).
+
+Inlier mask: TLS: final weight ≥ ½ (the final weights are binary); GM: final ``r² ≤ c̄²``
+(the weight at the threshold, ``¼`` at μ = 1, as for MM-PGO's kernels in
+:mod:`baselines.robust`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from popbench import objective
+from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
+from popbench.graph import EdgeKind, PoseGraph
+from popbench.methods import Budget, Result
+from popbench.solvers.chordal import chordal_initialisation
+from popbench.solvers.lm import solve_graph
+
+SURROGATES = ("tls", "gm")
+INNER_STARTS = ("problem", "chordal")
+# χ²₃ quantile at 0.99 (scipy.stats.chi2.ppf(0.99, 3)), on ‖e‖² of eq. 1.
+THRESHOLD = 11.344866730144373
+MU_STEP = 1.4
+COST_TOLERANCE = 1e-5
+WEIGHT_TOLERANCE = 1e-4
+ODOMETRY_KINDS = (EdgeKind.ODOMETRY, EdgeKind.INTER_RELATIVE)
+
+
+def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
+    """``r_e² = ‖e_e‖²`` of eq. 1 per edge, ``(M,)`` (dimensionless)."""
+    return np.sum(objective.linearise(graph, poses).errors ** 2, axis=1)
+
+
+def initial_mu(surrogate: str, max_squared: float, threshold: float = THRESHOLD) -> float:
+    """μ₀ from the largest squared residual of the non-robust solution (module docstring);
+    ``-1.0`` for TLS when ``2 r²_max ≤ c̄²`` (no edge can be an outlier)."""
+    if surrogate == "gm":
+        return 2.0 * max_squared / threshold
+    denominator = 2.0 * max_squared - threshold
+    return threshold / denominator if denominator > 0.0 else -1.0
+
+
+def next_mu(surrogate: str, mu: float, step: float = MU_STEP) -> float:
+    """μ of the next round: TLS ``μ·step``, GM ``max(1, μ/step)``."""
+    return mu * step if surrogate == "tls" else max(1.0, mu / step)
+
+
+def gnc_weights(
+    surrogate: str, squared: np.ndarray, mu: float, threshold: float = THRESHOLD
+) -> np.ndarray:
+    """Closed-form GNC weights in ``[0, 1]`` for squared residuals ``squared`` (``(M,)``) at μ
+    (module docstring), same shape."""
+    if surrogate == "gm":
+        return (mu * threshold / (squared + mu * threshold)) ** 2
+    upper = (mu + 1.0) / mu * threshold
+    lower = mu / (mu + 1.0) * threshold
+    middle = np.sqrt(threshold * mu * (mu + 1.0) / np.maximum(squared, 1e-300)) - mu
+    return np.where(squared >= upper, 0.0, np.where(squared <= lower, 1.0, middle))
+
+
+def solve(
+    problem: DistributedProblem,
+    budget: Budget | None = None,
+    surrogate: str = "tls",
+    threshold: float = THRESHOLD,
+    inner_start: str = "problem",
+    warm_start: bool = False,
+    inner_iterations: int = 100,
+    mu_step: float = MU_STEP,
+    **_: object,
+) -> Result:
+    """Method ``"gnc"``: centralised GNC (module docstring), robots ignored.
+
+    Args:
+        problem: the problem; its graph may hold outliers; ``problem.graph.poses`` is the
+            ``"problem"`` inner start.
+        budget: ``iterations`` GNC rounds at most (one round = one weight update and one inner
+            LM solve; default budget 1000, GNC stops far earlier by its own rule) and an
+            optional wall-clock cap [s], checked between rounds.
+        surrogate: ``"tls"`` (truncated least squares) or ``"gm"`` (Geman–McClure).
+        threshold: ``c̄²``, in units of ``‖e‖²`` (default χ²₃(0.99) = 11.345).
+        inner_start: ``"problem"`` or ``"chordal"``.
+        warm_start: start each inner solve from the last round's estimate instead of the inner
+            start.
+        inner_iterations: LM steps per inner solve at most.
+        mu_step: the factor μ moves by per round (> 1).
+        _: options of other methods (``seed``, ...), ignored: GNC is deterministic.
+
+    Returns:
+        :class:`~popbench.methods.Result`: ``inlier_mask`` from the final weights,
+        ``history`` = ``F`` (eq. 1, over every edge) after the non-robust solve and each round,
+        ``extras``: ``weights`` (``(M,)``), ``mu`` per round, ``rounds``, ``lm_steps``,
+        ``converged``, ``surrogate``, ``threshold``, ``inner_start``.
+    """
+    if surrogate not in SURROGATES:
+        raise ValueRangeError("gnc surrogate", surrogate, " | ".join(SURROGATES))
+    if inner_start not in INNER_STARTS:
+        raise ValueRangeError("gnc inner start", inner_start, " | ".join(INNER_STARTS))
+    if not threshold > 0.0 or not mu_step > 1.0:
+        raise ValueRangeError("gnc threshold / mu_step", (threshold, mu_step), "> 0 / > 1")
+    budget = Budget() if budget is None else budget
+    graph = problem.graph
+    started = time.perf_counter()
+    start = chordal_initialisation(graph) if inner_start == "chordal" else graph.poses
+    known = np.isin(graph.kinds, np.array(ODOMETRY_KINDS, dtype=np.int8))
+    weights = np.ones(graph.num_edges)
+    outcome = solve_graph(graph, start, inner_iterations)
+    poses, lm_steps = outcome.poses, outcome.iterations
+    history, mus = [outcome.F], []
+    squared = squared_residuals(graph, poses)
+    unknown = ~known
+    mu = initial_mu(surrogate, float(squared[unknown].max(initial=0.0)), threshold)
+    converged = mu <= 0.0
+    previous_cost = float(np.sum(squared))
+    for _ in range(budget.iterations if not converged else 0):
+        if budget.seconds is not None and time.perf_counter() - started > budget.seconds:
+            break
+        weights = np.where(known, 1.0, gnc_weights(surrogate, squared, mu, threshold))
+        outcome = solve_graph(
+            graph, poses if warm_start else start, inner_iterations, edge_weights=weights
+        )
+        poses, lm_steps = outcome.poses, lm_steps + outcome.iterations
+        squared = squared_residuals(graph, poses)
+        history.append(outcome.F)
+        mus.append(mu)
+        budget.round_done(len(mus))
+        cost = float(np.sum(weights * squared))
+        if _done(surrogate, mu, weights[unknown], cost, previous_cost):
+            converged = True
+            break
+        mu, previous_cost = next_mu(surrogate, mu, mu_step), cost
+    if surrogate == "tls":
+        inlier = weights >= 0.5
+    else:
+        inlier = squared <= threshold
+    inlier |= known
+    wall_s = time.perf_counter() - started
+    costs = objective.evaluate(graph, poses)
+    return Result(
+        poses=poses,
+        **costs._asdict(),  # F, F_chordal, chi2
+        wall_s=wall_s,
+        parallel_s=wall_s,
+        iterations=len(mus),
+        history=np.array(history),
+        inlier_mask=inlier,
+        extras={
+            "weights": weights,
+            "mu": np.array(mus),
+            "rounds": len(mus),
+            "lm_steps": lm_steps,
+            "converged": converged,
+            "surrogate": surrogate,
+            "threshold": threshold,
+            "inner_start": inner_start,
+        },
+    )
+
+
+def _done(
+    surrogate: str, mu: float, weights: np.ndarray, cost: float, previous_cost: float
+) -> bool:
+    """GTSAM's stopping rules (module docstring) after a round at ``mu``."""
+    if abs(cost - previous_cost) / max(previous_cost, 1e-7) < COST_TOLERANCE:
+        return True
+    if surrogate == "gm":
+        return mu <= 1.0
+    binary = (weights <= WEIGHT_TOLERANCE) | (weights >= 1.0 - WEIGHT_TOLERANCE)
+    return bool(np.all(binary))
