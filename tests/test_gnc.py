@@ -93,11 +93,13 @@ def test_gnc_flags_the_hand_made_outliers(surrogate, rng):
 
 def test_gnc_without_outliers_is_least_squares(small_graph):
     problem = DistributedProblem.from_graph(small_graph, 1)
-    result = gnc.solve(problem)
+    result = gnc.solve(problem, inner_start="problem")
     assert result.inlier_mask.all() and result.iterations == 0 and result.extras["converged"]
     np.testing.assert_allclose(result.poses, solve_graph(small_graph, small_graph.poses).poses)
     with pytest.raises(ValueRangeError):
         gnc.solve(problem, surrogate="huber")
+    with pytest.raises(ValueRangeError):
+        gnc.solve(problem, inner_start="odometry")
 
 
 @pytest.mark.dataset
@@ -145,7 +147,7 @@ def test_gnc_matches_gtsam_gnc_on_intel_with_outliers():
     optimizer.optimize()
     gtsam_flags = np.asarray(optimizer.getWeights())[: graph.num_edges] < 0.5
 
-    result = gnc.solve(problem)
+    result = gnc.solve(problem, inner_start="problem")
     ours = ~result.inlier_mask
     np.testing.assert_array_equal(ours, gtsam_flags)
     among = candidate_mask(graph)
