@@ -27,7 +27,8 @@ rotation step on (1), exact translation recovery, safeguard) at :meth:`TeamSyste
 the Hessian refresh at :meth:`TeamSystem.hessian_drift`; the AMM-PGO extrapolation and restarts
 at :class:`RestartState`; the robust reweighting at :func:`edge_weights`; the batched team system
 at :class:`TeamSystem`; the accounting (``parallel_s``, ``messages``, ``history``) at
-:func:`solve`. The gauge pose (the first vertex of robot 0) is held fixed.
+:func:`solve`. The gauge is free in a team, as in MM-PGO's own code
+(:func:`gauge_anchors`).
 """
 
 from __future__ import annotations
@@ -410,10 +411,11 @@ class TeamSystem:
 
     Args:
         graph: the global graph (``graph.robots`` assigned).
-        anchor: the gauge vertex (held fixed).
+        anchors: the vertices held fixed ``(k,)`` (see :func:`gauge_anchors`; empty: a free
+            gauge).
     """
 
-    def __init__(self, graph: PoseGraph, anchor: int) -> None:
+    def __init__(self, graph: PoseGraph, anchors: np.ndarray) -> None:
         robots = graph.robots
         self.robots = robots
         self.num_robots = graph.num_robots
@@ -427,7 +429,7 @@ class TeamSystem:
         self.factor = np.where(self.inter, 2.0, 1.0)  # (1): own-end blocks ×2 on inter edges
         self.inter_index = np.flatnonzero(self.inter)
         self.geometry_at_zero = HessianGeometry(1j * e.t_m, e.rot_m)  # J t̃, R̃
-        self.anchor = anchor
+        self.anchors = anchors = np.asarray(anchors, dtype=np.int64).reshape(-1)
         m = e.tails.size
         # Sum of per-edge [tail contributions; head contributions] onto the poses.
         self.scatter = sp.csr_matrix(
@@ -460,7 +462,7 @@ class TeamSystem:
         intra_tails, intra_heads = e.tails[self.intra], e.heads[self.intra]
         block_rows = np.concatenate([e.tails, e.heads, intra_tails, intra_heads])
         block_cols = np.concatenate([e.tails, e.heads, intra_heads, intra_tails])
-        self.translation_pattern = sparse_pattern(block_rows, block_cols, n, np.array([anchor]))
+        self.translation_pattern = sparse_pattern(block_rows, block_cols, n, anchors)
         k = np.arange(3)
         rows = np.broadcast_to(
             3 * block_rows[:, None, None] + k[None, :, None], (block_rows.size, 3, 3)
@@ -468,10 +470,13 @@ class TeamSystem:
         cols = np.broadcast_to(
             3 * block_cols[:, None, None] + k[None, None, :], (block_rows.size, 3, 3)
         )
-        self.hessian_pattern = sparse_pattern(rows.ravel(), cols.ravel(), 3 * n, 3 * anchor + k)
-        # Intra edges with the anchor at one end: the other end's row sees its fixed translation.
-        self.anchor_tail = self.intra & (e.tails == anchor)
-        self.anchor_head = self.intra & (e.heads == anchor)
+        pinned = (3 * anchors[:, None] + k[None, :]).ravel()
+        self.hessian_pattern = sparse_pattern(rows.ravel(), cols.ravel(), 3 * n, pinned)
+        # Intra edges with an anchor at one end: the other end's row sees its fixed translation.
+        is_anchor = np.zeros(n, dtype=bool)
+        is_anchor[anchors] = True
+        self.anchor_tail = self.intra & is_anchor[e.tails]
+        self.anchor_head = self.intra & is_anchor[e.heads]
 
     # -- weights and factorisations --
 
@@ -488,9 +493,17 @@ class TeamSystem:
         values = np.concatenate([weight, weight, -intra, -intra])
         self.translation = CholeskyFactor(assemble(self.translation_pattern, values))
         e = self.edges
-        self.anchor_coupling = np.zeros(self.num_poses)  # −L[:, anchor] before pinning
-        np.add.at(self.anchor_coupling, e.heads[self.anchor_tail], weight[self.anchor_tail])
-        np.add.at(self.anchor_coupling, e.tails[self.anchor_head], weight[self.anchor_head])
+        tail, head = self.anchor_tail, self.anchor_head
+        self.anchor_coupling = sp.csr_matrix(  # −L[:, anchors] before pinning, (N, N)
+            (
+                np.concatenate([weight[tail], weight[head]]),
+                (
+                    np.concatenate([e.heads[tail], e.tails[head]]),
+                    np.concatenate([e.tails[tail], e.heads[head]]),
+                ),
+            ),
+            shape=(self.num_poses, self.num_poses),
+        )
 
     def geometry(self, terms: EdgeTerms | None) -> HessianGeometry:
         """The Gauss–Newton geometry of every edge: intra edges at ``terms`` (at zero residual
@@ -593,14 +606,14 @@ class TeamSystem:
         """Heading increments ``(N,)`` of the Gauss–Newton steps ``−H_α⁻¹ ∇G^α`` at the base
         point whose edge terms are ``terms`` (``∇G^α`` there = robot α's block of ``∇F``)."""
         gradient = self.scatter @ body_gradients(terms, self.edges, self.kappa, self.tau)
-        gradient[self.anchor] = 0.0
+        gradient[self.anchors] = 0.0
         return -self.hessian.solve(gradient.ravel())[2::3]
 
     def recover_translations(
         self, headings: np.ndarray, base_poses: np.ndarray | PoseTable, base: EdgeTerms
     ) -> PoseTable:
         """Poses with ``headings`` ``(N,)`` and every robot's translations minimising its
-        ``G^α(· | base_poses)`` (edge terms ``base``) for them; the anchor keeps its pose.
+        ``G^α(· | base_poses)`` (edge terms ``base``) for them; the anchors keep their poses.
 
         Normal equations ``L t = b`` of ``Σ a τ‖t_q − t_p − c − βw‖²`` (``a, β`` = 1, 0 intra,
         2, ½ inter; ``c = R_pt̃``, ``w`` the base's world residual); on an inter edge the tail's
@@ -622,10 +635,11 @@ class TeamSystem:
         contributions[i] += copies
         contributions[m + i] = copies - 0.5 * weight[i] * base.t[i]
         rhs = self.scatter @ contributions.view(float).reshape(2 * m, 2)
-        anchor_z = base_poses.z[self.anchor]
-        anchor_translation = np.array([anchor_z.real, anchor_z.imag])
-        rhs += self.anchor_coupling[:, None] * anchor_translation
-        rhs[self.anchor] = anchor_translation
+        if self.anchors.size:
+            anchored = np.zeros(self.num_poses, dtype=complex)
+            anchored[self.anchors] = base_poses.z[self.anchors]
+            rhs += (self.anchor_coupling @ anchored).view(float).reshape(-1, 2)
+            rhs[self.anchors] = anchored[self.anchors].view(float).reshape(-1, 2)
         translations = self.translation.solve(rhs)
         return PoseTable(headings, translations.view(complex).ravel(), rotations)
 
@@ -686,6 +700,32 @@ class TeamSystem:
 
 
 # ----- the method ----------------------------------------------------------------------------
+
+
+def gauge_anchors(graph: PoseGraph) -> np.ndarray:
+    """The vertices held fixed ``(k,)``: the first vertex of every robot with no inter-robot
+    edge (its subproblem (1) is invariant to a rigid motion of its poses). Every other robot's
+    subproblem is anchored by its neighbours' fixed copies, so in a connected team of two or
+    more robots the gauge is free, as in MM-PGO's own code; one robot alone anchors its first
+    vertex."""
+    robots = graph.robots
+    linked = np.zeros(graph.num_robots, dtype=bool)
+    cut = robots[graph.tails] != robots[graph.heads]
+    linked[robots[graph.tails[cut]]] = linked[robots[graph.heads[cut]]] = True
+    first = np.full(graph.num_robots, graph.num_poses, dtype=np.int64)
+    np.minimum.at(first, robots, np.arange(graph.num_poses))
+    return first[~linked & (first < graph.num_poses)]
+
+
+def to_frame_of(poses: np.ndarray, vertex: int, target: np.ndarray) -> np.ndarray:
+    """``poses`` ``(N, 3)`` moved rigidly so that pose ``vertex`` equals ``target`` ``(3,)``
+    (``T ∘ X`` with ``T = target ∘ X_vertex⁻¹``; every relative pose, hence F, unchanged)."""
+    turn = target[2] - poses[vertex, 2]
+    rotation = se2.rotation(np.array([turn]))[0]
+    moved = np.empty_like(poses)
+    moved[:, :2] = (poses[:, :2] - poses[vertex, :2]) @ rotation.T + target[:2]
+    moved[:, 2] = se2.wrap(poses[:, 2] + turn)
+    return moved
 
 
 def edge_weights(graph: PoseGraph, poses: np.ndarray, kernel: str, scale: float) -> np.ndarray:
@@ -763,11 +803,11 @@ def solve(
             "c > 0, interval ≥ 1, interval ≥ 0, tolerance ≥ 0",
         )
     graph = problem.graph
-    poses = pose_table(graph.poses.copy())
+    start_poses = graph.poses.copy()
+    poses = pose_table(start_poses)
     kappa, tau = objective.weights(graph.information)
-    anchor = int(np.flatnonzero(graph.robots == 0)[0])
     tic = time.perf_counter()
-    team = TeamSystem(graph, anchor)
+    team = TeamSystem(graph, gauge_anchors(graph))
     terms = edge_terms(poses, team.edges)
     at_start = terms if hessian_interval > 0 else None  # H's geometry; None: zero residual
     team.set_weights(kappa, tau, at_start)
@@ -821,8 +861,8 @@ def solve(
         iterations += 1
         budget.round_done(iterations)
 
-    poses = poses.poses
-    poses[:, 2] = se2.wrap(poses[:, 2])
+    reference = int(np.flatnonzero(graph.robots == 0)[0])  # the output's gauge
+    poses = to_frame_of(poses.poses, reference, start_poses[reference])
     costs = objective.evaluate(graph, poses)
     history.append(costs.F_chordal)
     extras: dict[str, object] = {
