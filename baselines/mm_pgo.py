@@ -28,7 +28,8 @@ the Hessian refresh at :meth:`TeamSystem.hessian_drift`; the AMM-PGO extrapolati
 at :class:`RestartState`; the robust reweighting at :func:`edge_weights`; the batched team system
 at :class:`TeamSystem`; the accounting (``parallel_s``, ``messages``, ``history``) at
 :func:`solve`. The gauge is free in a team, as in MM-PGO's own code
-(:func:`gauge_anchors`).
+(:func:`gauge_anchors`). Without a robust kernel the
+returned estimate is the iterate of lowest F seen (never above the start; docs/mm_pgo.md).
 """
 
 from __future__ import annotations
@@ -816,6 +817,7 @@ def solve(
     previous = poses
     history = []
     state = RestartState()
+    best, best_objective = poses, np.inf  # the lowest-F iterate (kernel "none")
     iterations = weight_updates = hard_restarts = soft_restarts = refactorisations = 0
     while iterations < budget.iterations:
         if budget.seconds is not None and time.perf_counter() - start > budget.seconds:
@@ -834,6 +836,8 @@ def solve(
         history.append(
             objective_now if kernel == "none" else float(edge_costs(terms, kappa, tau).sum())
         )
+        if kernel == "none" and objective_now < best_objective:
+            best, best_objective = poses, objective_now
         if hessian_interval > 0 and iterations % hessian_interval == 0:
             if team.hessian_drift(terms) > hessian_tolerance:
                 team.factorise_hessian(terms)
@@ -861,6 +865,8 @@ def solve(
         iterations += 1
         budget.round_done(iterations)
 
+    if kernel == "none" and best_objective < float(costs.sum()):
+        poses = best  # never return a worse iterate than one already seen (restarts)
     reference = int(np.flatnonzero(graph.robots == 0)[0])  # the output's gauge
     poses = to_frame_of(poses.poses, reference, start_poses[reference])
     costs = objective.evaluate(graph, poses)
