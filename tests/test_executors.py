@@ -189,3 +189,38 @@ def test_thread_pin_environment_and_torch():
         assert torch.get_num_threads() == 1
         assert os.environ["MKL_NUM_THREADS"] == "1"
     assert torch.get_num_threads() == before
+
+
+# ----- the command line ---------------------------------------------------------------------------
+
+
+def test_run_jobs_flag_reaches_the_manifest_and_bad_flags_fail_first(tmp_path, capsys):
+    from conftest import ring_g2o
+
+    from popbench.cli import main
+
+    graph = ring_g2o(tmp_path / "ring.g2o")
+    args = ["run", "table1", "--datasets", str(graph), "--robots", "1,2", "--methods", "mm-pgo"]
+    args += ["--iterations", "5", "--out", str(tmp_path / "D")]
+    assert main([*args, "--jobs", "2", "--threads", "1"]) == 0, capsys.readouterr().err
+    execution = json.loads((tmp_path / "D" / "manifest.json").read_text())["execution"]
+    assert execution["executor"] == "process" and execution["jobs"] == 2
+    assert execution["cells"] == 3 and execution["beside_others"] == 3  # optimum + 2 cells
+    capsys.readouterr()
+    for bad, message in (
+        (["--executor", "dask"], "invalid --executor 'dask'"),
+        (["--address", "HEAD:6379"], "invalid --address 'HEAD:6379'"),
+        (["--jobs", "0"], "--jobs"),
+    ):
+        assert main([*args, "--fresh", *bad]) != 0
+        assert message in capsys.readouterr().err
+
+
+def test_solve_threads_flag(tmp_path, capsys):
+    from conftest import ring_g2o
+
+    from popbench.cli import main
+
+    graph = ring_g2o(tmp_path / "ring.g2o")
+    assert main(["solve", str(graph), "--threads", "2", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["F"] >= 0

@@ -14,6 +14,7 @@ from pathlib import Path
 import typer
 
 from popbench.errors import ValueRangeError
+from popbench.harness.executors import ADDRESS_HELP, EXECUTOR_HELP, JOBS_HELP, THREADS_HELP
 
 run_app = typer.Typer(
     help="Run the paper's experiments; write CSV, markdown, LaTeX and figures.",
@@ -30,8 +31,23 @@ CACHE_HELP = (
 )
 
 
+PARALLEL_HELP = (
+    "Parallel: --jobs N cells at once (default: this machine's cores), each in its own worker "
+    "process pinned to --threads threads (default 1), every finished cell cached at once; "
+    "--executor ray [--address HEAD:6379] submits one Ray task per cell to a cluster (or a local "
+    "Ray instance). Non-time columns do not depend on the executor; manifest.json records it."
+)
+
+
 def _epilog(*examples: str) -> str:
-    return "Examples:\n\n" + "\n\n".join(f"  {line}" for line in examples) + "\n\n" + CACHE_HELP
+    return (
+        "Examples:\n\n"
+        + "\n\n".join(f"  {line}" for line in examples)
+        + "\n\n"
+        + CACHE_HELP
+        + "\n\n"
+        + PARALLEL_HELP
+    )
 
 
 FRESH_HELP = "Recompute every cell, ignoring (and overwriting) the cached ones in OUT/cells/."
@@ -76,6 +92,16 @@ def _init(value: str) -> str:
     return check_start(value, "--init")
 
 
+def _execution(jobs: int | None, executor: str, address: str | None, threads: int):
+    """The Execution of the --jobs, --executor, --address and --threads options."""
+    from popbench.harness.executors import EXECUTORS, Execution
+
+    name = _names(executor, EXECUTORS, "--executor")[0]
+    if address is not None and name != "ray":
+        raise ValueRangeError("--address", address, "only with --executor ray")
+    return Execution(jobs=jobs, executor=name, address=address, threads=threads)
+
+
 def _methods(text: str) -> tuple[str, ...]:
     from popbench.methods import METHODS
 
@@ -86,6 +112,8 @@ def _methods(text: str) -> tuple[str, ...]:
     "table1",
     epilog=_epilog(
         "popbench run table1 --quick                      # mit, n = 3, 100 rounds",
+        "popbench run table1 --jobs 1                     # one cell at a time",
+        "popbench run table1 --executor ray --address HEAD:6379",
         "popbench run table1 --datasets intel,my.g2o --robots 3,7 --methods mm-pgo "
         "--out results/mine",
     ),
@@ -123,6 +151,10 @@ def table1_command(
         "--datasets, --robots, --iterations and the other options given replace its defaults.",
     ),
     fresh: bool = typer.Option(False, "--fresh", help=FRESH_HELP),
+    jobs: int = typer.Option(None, "--jobs", "-j", min=1, help=JOBS_HELP, show_default=False),
+    executor: str = typer.Option("process", help=EXECUTOR_HELP),
+    address: str = typer.Option(None, help=ADDRESS_HELP, show_default=False),
+    threads: int = typer.Option(1, min=1, help=THREADS_HELP),
 ) -> None:
     """The paper's Table I: datasets × robots × methods, with F* and the gap F/F* − 1.
 
@@ -147,7 +179,7 @@ def table1_command(
     if out is not None:
         options["out"] = out
     config = Table1Config.quick(**options) if quick else Table1Config(**options)
-    frame = run_table1(config, fresh=fresh)
+    frame = run_table1(config, fresh=fresh, execution=_execution(jobs, executor, address, threads))
     typer.echo(
         f"{len(frame)} cells -> {config.out}/table1.csv, table1.md, table1.tex, "
         "table1.png, table1.pdf"
@@ -179,6 +211,10 @@ def outliers_command(
     ),
     out: Path = typer.Option(Path("results/outliers"), help="Output folder."),
     fresh: bool = typer.Option(False, "--fresh", help=FRESH_HELP),
+    jobs: int = typer.Option(None, "--jobs", "-j", min=1, help=JOBS_HELP, show_default=False),
+    executor: str = typer.Option("process", help=EXECUTOR_HELP),
+    address: str = typer.Option(None, help=ADDRESS_HELP, show_default=False),
+    threads: int = typer.Option(1, min=1, help=THREADS_HELP),
 ) -> None:
     """The paper's Table II: F, outlier precision and recall with corrupted loop closures.
 
@@ -200,7 +236,9 @@ def outliers_command(
         candidates=_names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
         out=out,
     )
-    frame = run_outliers(config, fresh=fresh)
+    frame = run_outliers(
+        config, fresh=fresh, execution=_execution(jobs, executor, address, threads)
+    )
     typer.echo(f"{len(frame)} cells -> {config.out}/outliers.csv, outliers.md, outliers.tex")
 
 
@@ -219,6 +257,10 @@ def scalability_command(
     init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
     out: Path = typer.Option(Path("results/scalability"), help="Output folder."),
     fresh: bool = typer.Option(False, "--fresh", help=FRESH_HELP),
+    jobs: int = typer.Option(None, "--jobs", "-j", min=1, help=JOBS_HELP, show_default=False),
+    executor: str = typer.Option("process", help=EXECUTOR_HELP),
+    address: str = typer.Option(None, help=ADDRESS_HELP, show_default=False),
+    threads: int = typer.Option(1, min=1, help=THREADS_HELP),
 ) -> None:
     """The paper's Fig. 5: F and time against team size, actors replicated.
 
@@ -235,7 +277,9 @@ def scalability_command(
         init=_init(init),
         out=out,
     )
-    frame = run_scalability(config, fresh=fresh)
+    frame = run_scalability(
+        config, fresh=fresh, execution=_execution(jobs, executor, address, threads)
+    )
     typer.echo(f"{len(frame)} cells -> {config.out}/scalability.csv, scalability.png/.pdf")
 
 
