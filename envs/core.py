@@ -32,6 +32,32 @@ Action (per agent)
     translation noise and ≈ 1.4–5 σ of rotation noise, but cannot teleport a pose (the paper's
     safety constraint, §III-B footnote).
 
+Correction modes (``correction=``; :mod:`envs.tree` for the tree)
+    ``"pose"`` (default, the paper's literal reading): eq. C above, only ``q`` moves.
+    ``"subtree"``: the endpoint farther from the root in the agent's spanning tree (the *mover*,
+    :attr:`envs.tree.SpanningTree.mover`; the head unless the head is an ancestor of the tail)
+    is placed so that the edge's relative pose changes by exactly ``Δ`` and moves rigidly with
+    its whole subtree; every edge inside the subtree or outside it keeps its relative pose, only
+    the edges that cross the subtree's boundary change (and only they are refreshed). On a tree
+    edge that leaves every other tree edge's relative pose unchanged; on a loop closure the
+    mover's own tree edge to its parent changes with it. With the
+    subtree mode the separator copies are placed from their owned neighbours at every episode
+    start (:func:`envs.tree.place_separators`; ``place_separators=`` overrides).
+
+Observation modes (``observation=``)
+    ``"paper"``: node poses in the frame of the agent's first owned pose. ``"invariant"``: node
+    poses relative to their tree parent (the root: the identity), so that, with the residuals, the
+    whole observation is invariant to a rigid motion of any subtree except on the moved
+    subtree's root and on the edges that cross its boundary.
+
+Action scale (``action_scale=``)
+    ``"metric"``: ``Δ`` in metres / radians. ``"whitened"``: ``Δ`` in units of the chosen edge's
+    own standard deviation, ``Δ_metric = Λ^−½ Δ`` (:func:`envs.observation.whitening`), clipped
+    to ``|Δ| ≤`` :data:`WHITENED_DELTA_MAX` before and to ``Δmax`` after the conversion; the
+    observed residuals become ``Λ^½ r``, the measurement length attribute ``√τ ‖t̃‖`` and the
+    ``log diag Λ`` attributes are centred on the agent's mean, so the actor sees no absolute
+    noise scale.
+
 Localisation error ``L`` of agent ``i`` (reward signal)
     ``L_i(x) = Σ_{e ∈ E_i} κ_e wrap(θ_q − θ_p − θ*_e)² + τ_e ‖R(θ_p)ᵀ(t_q − t_p) − t*_e‖²``
     over the agent's local edges, with its own copies of the poses and the κ/τ weights of F.
@@ -66,14 +92,19 @@ import numpy as np
 import torch
 
 from envs.observation import REWARDS, Dimensions, pack_problem
+from envs.tree import pack_trees, place_separators
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs
 
-_FEATURE_KEYS = ("poses", "log_degree", "owned", "node_mask")
+_FEATURE_KEYS = ("poses", "log_degree", "owned", "node_mask", "tree_parent")
 DEFAULT_DELTA_MAX = (0.5, 0.5, 0.3)  # (δx [m], δy [m], δθ [rad])
 EPSILON = 1e-6  # ε of the reward's normalisation and terminal log-ratio
 INVALID_EDGE_MODES = ("raise", "repair")
+CORRECTIONS = ("pose", "subtree")
+OBSERVATIONS = ("paper", "invariant")
+ACTION_SCALES = ("metric", "whitened")
+WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened action
 
 ProblemSource = Callable[[int], DistributedProblem]
 
@@ -102,6 +133,14 @@ def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.stack([x, y, wrap(a[..., 2] + b[..., 2])], -1)
 
 
+def inverse(a: torch.Tensor) -> torch.Tensor:
+    """``a⁻¹`` for poses ``(..., 3)``."""
+    c, s = torch.cos(a[..., 2]), torch.sin(a[..., 2])
+    x = -(c * a[..., 0] + s * a[..., 1])
+    y = s * a[..., 0] - c * a[..., 1]
+    return torch.stack([x, y, wrap(-a[..., 2])], -1)
+
+
 def residuals(
     tail_poses: torch.Tensor, head_poses: torch.Tensor, measurements: torch.Tensor
 ) -> torch.Tensor:
@@ -121,7 +160,8 @@ def node_features(
 ) -> torch.Tensor:
     """``(..., 6)`` float32 node features ``[x, y [m], sin θ, cos θ, log(1 + degree), owned]``,
     zero on padding: ``poses (..., 3)`` in the frame of ``frame`` (broadcast against ``poses``;
-    the agent's first owned pose); ``log_degree``, ``owned``, ``node_mask`` of shape ``(...)``."""
+    the agent's first owned pose, or each vertex's tree parent for the invariant observation);
+    ``log_degree``, ``owned``, ``node_mask`` of shape ``(...)``."""
     relative = between(frame, poses)
     features = torch.stack(
         [
@@ -203,6 +243,11 @@ class PGOCore:
             unprocessed edge, or the no-op when none is left).
         device: torch device of every tensor.
         dtype: floating dtype of the pose state (observations are float32).
+        correction: ``"pose"`` or ``"subtree"`` (module docstring).
+        observation: ``"paper"`` or ``"invariant"``.
+        action_scale: ``"metric"`` or ``"whitened"``.
+        place_separators: place the separator copies at each episode start (default: in the
+            subtree mode only).
     """
 
     def __init__(
@@ -215,7 +260,24 @@ class PGOCore:
         invalid_edge: str = "raise",
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float64,
+        correction: str = "pose",
+        observation: str = "paper",
+        action_scale: str = "metric",
+        place_separators: bool | None = None,
     ) -> None:
+        for name, value, allowed in (
+            ("correction", correction, CORRECTIONS),
+            ("observation", observation, OBSERVATIONS),
+            ("action_scale", action_scale, ACTION_SCALES),
+        ):
+            if value not in allowed:
+                raise ValueRangeError(name, value, ", ".join(allowed))
+        self.correction, self.observation_mode, self.action_scale = (
+            correction,
+            observation,
+            action_scale,
+        )
+        self.place = correction == "subtree" if place_separators is None else place_separators
         if reward not in REWARDS:
             raise ValueRangeError("reward", reward, ", ".join(REWARDS))
         if invalid_edge not in INVALID_EDGE_MODES:
@@ -227,6 +289,13 @@ class PGOCore:
         self.reward_kind, self.invalid_edge = reward, invalid_edge
         self.device, self.dtype = torch.device(device), dtype
         self.delta_max = torch.tensor(delta_max, dtype=dtype, device=self.device)
+        whitened = action_scale == "whitened"
+        #: the bound of the action's ``delta`` (its spec): Δmax, or WHITENED_DELTA_MAX
+        self.action_bound = (
+            torch.full((3,), WHITENED_DELTA_MAX, dtype=dtype, device=self.device)
+            if whitened
+            else self.delta_max
+        )
         self.problems: list[DistributedProblem | None] = [None] * batch
         self.tensors: dict[str, torch.Tensor] = {}
 
@@ -244,7 +313,14 @@ class PGOCore:
                 raise ValueRangeError(
                     "robots", problem.num_robots, f"{self.num_agents} (this environment's agents)"
                 )
-        packs = [pack_problem(problem, self.dims, self.reward_kind) for problem in problems]
+        packs = []
+        for problem in problems:
+            start = place_separators(problem) if self.place else None
+            pack = pack_problem(problem, self.dims, self.reward_kind, start)
+            pack.update(pack_trees(problem, self.dims.vertices, self.dims.edges))
+            if self.action_scale == "whitened":
+                _whiten_attributes(pack)
+            packs.append(pack)
         fresh = {
             key: torch.as_tensor(np.stack([pack[key] for pack in packs])).to(self.device)
             for key in packs[0]
@@ -335,20 +411,23 @@ class PGOCore:
         poses = t["poses"].view(g, -1, 3)
         tail = torch.gather(t["tails"].view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
         head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
-        clipped = torch.maximum(
-            torch.minimum(delta.to(self.device, self.dtype), self.delta_max), -self.delta_max
-        ).reshape(g, 1, 3)
-        x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
-        moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
-        _scatter_rows(poses, head, moved)
+        clipped = self.metric_delta(flat_edge, delta.to(self.device, self.dtype).reshape(g, 1, 3))
+        previous = t["loss"].clone()
+        if self.correction == "subtree":
+            moved, inside = self.subtree_move(poses, flat_edge, clipped)
+            poses.copy_(moved)
+            change = self._refresh_boundary(inside)
+        else:
+            x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
+            moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
+            _scatter_rows(poses, head, moved)
+            incident = _gather_rows(t["incident"].view(g, -1, self.dims.degree), head).squeeze(1)
+            change = self._refresh_edges(incident)
 
-        incident = _gather_rows(t["incident"].view(g, -1, self.dims.degree), head).squeeze(1)
         processed = t["processed"].view(g, -1)
         processed.scatter_(1, flat_edge, True)
         t["remaining"] -= (edge < e).to(torch.int64)
-
-        previous = t["loss"].clone()
-        t["loss"] += self._refresh_edges(incident).view(b, n)
+        t["loss"] += change.view(b, n)
         gain = (previous - t["loss"]) / (previous + EPSILON)
         reward = torch.tanh(gain).clamp(-1.0, 1.0)
         agent_done = t["remaining"] == 0
@@ -357,6 +436,69 @@ class PGOCore:
         bonus = torch.log((t["initial_loss"] + EPSILON) / (t["loss"] + EPSILON))
         reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
         return StepResult(reward, done, agent_done, repaired)
+
+    def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+        """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
+        ``edge (G, 1)`` (``G = B·n``): clipped to the action bound, converted back from the
+        whitened units (``action_scale="whitened"``), clipped to ``Δmax``."""
+        bound = self.action_bound
+        delta = torch.maximum(torch.minimum(delta, bound), -bound)
+        if self.action_scale == "whitened":
+            g = edge.shape[0]
+            inverse_root = self.tensors["inverse_sqrt_information"].view(g, -1, 3, 3)
+            delta = (_gather_rows(inverse_root, edge) @ delta.unsqueeze(-1)).squeeze(-1)
+        return torch.maximum(torch.minimum(delta, self.delta_max), -self.delta_max)
+
+    def subtree_move(
+        self, poses: torch.Tensor, edge: torch.Tensor, delta: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The correction, out of place: ``(moved poses (G, V+1, 3), inside (G, V+1))`` for
+        ``poses (G, V+1, 3)``, edge slots ``edge (G, 1)`` and metric ``delta (G, 1, 3)``;
+        ``inside`` flags the moved subtree (only the trash vertex for the no-op). In the pose
+        mode the "subtree" is the head alone (eq. C)."""
+        t = self.tensors
+        g = edge.shape[0]
+        tail = torch.gather(t["tails"].view(g, -1), 1, edge)
+        head = torch.gather(t["heads"].view(g, -1), 1, edge)
+        if self.correction == "pose":
+            mover = head
+        else:
+            mover = torch.gather(t["mover"].view(g, -1), 1, edge)
+        x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
+        relative = between(x_p, x_q) + delta
+        moves_head = (mover == head).unsqueeze(-1)
+        old = torch.where(moves_head, x_q, x_p)
+        new = torch.where(moves_head, compose(x_p, relative), compose(x_q, inverse(relative)))
+        position = t["tree_position"].view(g, -1)
+        start = torch.gather(position, 1, mover)
+        stop = torch.gather(t["tree_end"].view(g, -1), 1, mover)
+        inside = (position >= start) & (position < stop)
+        if self.correction == "pose":
+            inside = torch.arange(position.shape[1], device=self.device) == mover
+        moved = torch.where(inside.unsqueeze(-1), compose(new, between(old, poses)), poses)
+        return moved, inside
+
+    def _refresh_boundary(self, inside: torch.Tensor) -> torch.Tensor:
+        """Recompute residuals and target costs of the edges with exactly one endpoint in the
+        moved subtree ``inside (G, V+1)``; return the change of ``L`` per agent, ``(G,)``."""
+        t = self.tensors
+        g = inside.shape[0]
+        poses = t["poses"].view(g, -1, 3)
+        tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+        crossing = torch.gather(inside, 1, tails) != torch.gather(inside, 1, heads)
+        x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
+        r = residuals(x_p, x_q, t["measurements"].view(g, -1, 3))
+        cost = edge_costs(
+            residuals(x_p, x_q, t["targets"].view(g, -1, 3)),
+            t["kappa"].view(g, -1),
+            t["tau"].view(g, -1),
+        )
+        costs = t["costs"].view(g, -1)
+        change = torch.where(crossing, cost - costs, torch.zeros_like(cost)).sum(-1)
+        old_r = t["residuals"].view(g, -1, 3)
+        old_r.copy_(torch.where(crossing.unsqueeze(-1), r, old_r))
+        costs.copy_(torch.where(crossing, cost, costs))
+        return change
 
     def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:
         """Recompute residuals and target costs of the edge slots ``incident (G, D)`` in place;
@@ -396,17 +538,20 @@ class PGOCore:
         t = self.tensors
         v, e = self.dims.vertices, self.dims.edges
         poses = t["poses"][:, :, :v]
+        if self.observation_mode == "invariant":
+            parent = t["tree_parent"][:, :, :v]
+            frame = _gather_rows(poses.flatten(0, 1), parent.flatten(0, 1)).view(poses.shape)
+        else:
+            frame = poses[:, :, :1]
         node_mask = t["node_mask"]
         return {
-            "node_features": node_features(
-                poses[:, :, :1], poses, t["log_degree"], t["owned"], node_mask
-            ),
+            "node_features": node_features(frame, poses, t["log_degree"], t["owned"], node_mask),
             "node_mask": node_mask,
             "edge_index": t["edge_index"],
             "edge_attr": t["edge_attr"],
             "edge_mask": t["edge_mask"],
             "processed": t["processed"][..., :e].clone(),
-            "residuals": t["residuals"][..., :e, :].to(torch.float32),
+            "residuals": self._observed_residuals().to(torch.float32),
         }
 
     def vertex_features(
@@ -415,13 +560,26 @@ class PGOCore:
         """``(S, 6)`` float32 :func:`node_features` of local ``vertices (S,)`` of ``robots (S,)``
         in batch element ``element`` (the rows of ``observation()["node_features"]``)."""
         t = {k: t[element] for k, t in self.tensors.items() if k in _FEATURE_KEYS}
+        if self.observation_mode == "invariant":
+            frame = t["poses"][robots, t["tree_parent"][robots, vertices]]
+        else:
+            frame = t["poses"][robots, 0]
         return node_features(
-            t["poses"][robots, 0],
+            frame,
             t["poses"][robots, vertices],
             t["log_degree"][robots, vertices],
             t["owned"][robots, vertices],
             t["node_mask"][robots, vertices],
         )
+
+    def _observed_residuals(self) -> torch.Tensor:
+        """``(B, n, E, 3)`` residuals as observed: metric, or ``Λ^½ r`` when whitened."""
+        t = self.tensors
+        e = self.dims.edges
+        r = t["residuals"][..., :e, :]
+        if self.action_scale == "whitened":
+            r = (t["sqrt_information"][..., :e, :, :] @ r.unsqueeze(-1)).squeeze(-1)
+        return r
 
     def _cache_edge_index(self) -> None:
         """``edge_index (B, n, 2, E)``: local (tail, head), 0 on padding (a new tensor)."""
@@ -439,3 +597,14 @@ class PGOCore:
         poses = t["poses"][element].detach().cpu().numpy()
         counts = t["node_mask"][element].sum(-1).cpu().numpy()
         return [poses[agent, :count] for agent, count in enumerate(counts)]
+
+
+def _whiten_attributes(pack: dict[str, np.ndarray]) -> None:
+    """Scale-free edge attributes in place (``action_scale="whitened"``): ``‖t̃‖ → √τ ‖t̃‖`` and
+    ``log diag Λ`` centred on the agent's mean over its edges."""
+    attr, mask = pack["edge_attr"], pack["edge_mask"]
+    e = attr.shape[1]
+    attr[..., 8] *= np.sqrt(pack["tau"][:, :e]).astype(np.float32)
+    count = np.maximum(mask.sum(1, keepdims=True), 1)[..., None]
+    mean = (attr[..., 4:7] * mask[..., None]).sum(1, keepdims=True) / count
+    attr[..., 4:7] = np.where(mask[..., None], attr[..., 4:7] - mean, 0.0)

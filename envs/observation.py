@@ -71,16 +71,24 @@ def check_fits(problem: DistributedProblem, dims: Dimensions) -> None:
 
 
 def pack_problem(
-    problem: DistributedProblem, dims: Dimensions, reward: str = "localisation"
+    problem: DistributedProblem,
+    dims: Dimensions,
+    reward: str = "localisation",
+    local_poses: Sequence[np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
     """Padded per-agent arrays of one problem (leading axis = agent ``n``).
+
+    ``local_poses`` (one ``(n_r, 3)`` array per agent) replaces the initial local copies
+    (default: the problem's initial estimate), e.g. with placed separators
+    (:func:`envs.tree.place_separators`).
 
     Returns a dict of numpy arrays: ``vertex_ids (n,V)`` global ids (−1 pad), ``node_mask``,
     ``owned``, ``log_degree (n,V)``, ``poses (n,V+1,3)``, ``tails``/``heads (n,E+1)`` local ids
     (pad and no-op slot → trash vertex ``V``), ``edge_ids (n,E)`` global ids (−1 pad),
     ``edge_mask (n,E)``, ``measurements``/``targets (n,E+1,3)``, ``kappa``/``tau (n,E+1)``
     (0 on pads), ``edge_attr (n,E,11)``, ``incident (n,V+1,D)`` edge slots (pad → ``E``),
-    ``num_edges (n,)``.
+    ``num_edges (n,)``, ``sqrt_information``/``inverse_sqrt_information (n,E+1,3,3)``
+    (:func:`whitening`; identity on pads).
     """
     graph = problem.graph
     if reward not in REWARDS:
@@ -108,6 +116,8 @@ def pack_problem(
         "edge_attr": np.zeros((n, e, EDGE_FEATURES), np.float32),
         "incident": np.full((n, v + 1, d), e, np.int64),
         "num_edges": np.zeros(n, np.int64),
+        "sqrt_information": np.tile(np.eye(3), (n, e + 1, 1, 1)),
+        "inverse_sqrt_information": np.tile(np.eye(3), (n, e + 1, 1, 1)),
     }
     kappa_all, tau_all = weights(graph.information)
     gap_scale = np.log1p(max(graph.num_poses - 1, 1))
@@ -119,7 +129,7 @@ def pack_problem(
         pack["owned"][robot, : local.owned_count] = True
         degree = np.bincount(np.concatenate([tails, heads[tails != heads]]), minlength=nv)
         pack["log_degree"][robot, :nv] = np.log1p(degree)
-        pack["poses"][robot, :nv] = local.graph.poses
+        pack["poses"][robot, :nv] = local.graph.poses if local_poses is None else local_poses[robot]
         pack["tails"][robot, :ne], pack["heads"][robot, :ne] = tails, heads
         pack["edge_ids"][robot, :ne] = edges
         pack["edge_mask"][robot, :ne] = True
@@ -136,7 +146,20 @@ def pack_problem(
         )
         pack["incident"][robot] = _incidence(tails, heads, v, d, e)
         pack["num_edges"][robot] = ne
+        root, inverse_root = whitening(local.graph.information)
+        pack["sqrt_information"][robot, :ne] = root
+        pack["inverse_sqrt_information"][robot, :ne] = inverse_root
     return pack
+
+
+def whitening(information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Λ^½, Λ^−½)``, each ``(M, 3, 3)``: the symmetric square root of each edge's information
+    and its inverse (``Λ^½ r`` is a residual in units of the edge's own standard deviation;
+    ``‖Λ^½ r‖² = rᵀΛr``)."""
+    values, vectors = np.linalg.eigh(information)
+    root = np.sqrt(np.maximum(values, np.finfo(float).tiny))
+    transposed = np.swapaxes(vectors, 1, 2)
+    return (vectors * root[:, None, :]) @ transposed, (vectors / root[:, None, :]) @ transposed
 
 
 def edge_attributes(

@@ -42,6 +42,8 @@ class PGOParallelEnv(ParallelEnv):
         delta_max: ``Δmax`` (δx [m], δy [m], δθ [rad]).
         reward: ``"localisation"`` or ``"F"``.
         invalid_edge: ``"repair"`` (default) or ``"raise"``.
+        modes: ``correction``, ``observation``, ``action_scale``, ``place_separators`` of
+            :class:`envs.core.PGOCore`.
     """
 
     metadata = {"name": "popbench_pgo_v0", "is_parallelizable": True}
@@ -55,11 +57,12 @@ class PGOParallelEnv(ParallelEnv):
         delta_max: Sequence[float] = DEFAULT_DELTA_MAX,
         reward: str = "localisation",
         invalid_edge: str = "repair",
+        **modes: str | bool | None,
     ) -> None:
-        self.core = PGOCore(num_agents, dims, 1, delta_max, reward, invalid_edge)
+        self.core = PGOCore(num_agents, dims, 1, delta_max, reward, invalid_edge, **modes)  # type: ignore[arg-type]
         self.sampler = ProblemSampler(source, 1, seed)
         self.dims = dims
-        self.delta_max = np.asarray(delta_max, dtype=np.float32)
+        self.delta_max = self.core.action_bound.numpy().astype(np.float32)
         self.possible_agents = [f"agent_{index}" for index in range(num_agents)]
         self.agents: list[str] = []
         # PettingZoo wants the very same space object on every call for an agent.

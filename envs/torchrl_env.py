@@ -43,6 +43,8 @@ class PGOEnv(EnvBase):
         reward: ``"localisation"`` (ground-truth χ², default) or ``"F"``.
         invalid_edge: ``"raise"`` or ``"repair"`` (see :class:`envs.core.PGOCore`).
         dtype: floating dtype of the pose state.
+        modes: ``correction``, ``observation``, ``action_scale``, ``place_separators`` of
+            :class:`envs.core.PGOCore`.
     """
 
     def __init__(
@@ -57,11 +59,20 @@ class PGOEnv(EnvBase):
         reward: str = "localisation",
         invalid_edge: str = "raise",
         dtype: torch.dtype = torch.float64,
+        **modes: str | bool | None,
     ) -> None:
         super().__init__(device=device, batch_size=torch.Size([batch_size]))
         self.num_agents, self.dims = num_agents, dims
         self.core = PGOCore(
-            num_agents, dims, batch_size, delta_max, reward, invalid_edge, self.device, dtype
+            num_agents,
+            dims,
+            batch_size,
+            delta_max,
+            reward,
+            invalid_edge,
+            self.device,
+            dtype,
+            **modes,  # type: ignore[arg-type]
         )
         self.sampler = ProblemSampler(source, batch_size, seed)
         self._make_specs()
@@ -97,7 +108,7 @@ class PGOEnv(EnvBase):
             shape=(b,),
             device=device,
         )
-        limit = self.core.delta_max.to(torch.float32).expand(b, n, 3).clone()
+        limit = self.core.action_bound.to(torch.float32).expand(b, n, 3).clone()
         action = Composite(
             edge=Categorical(
                 e + 1,
