@@ -44,20 +44,15 @@ def local_optima(
     iterations: int = LM_ITERATIONS,
 ) -> list[np.ndarray]:
     """Each agent's local-graph optimum ``[(n_r, 3)]`` (LM from ``local_poses``, default the
-    initial copies; local vertex 0 fixed; injected outliers left out)."""
+    initial copies; local vertex 0 fixed; injected outliers left out). As
+    :func:`popbench.solvers.local_lm.local_optima`, but from the episode's own start (placed
+    separator copies differ per agent, so they are not one global estimate)."""
     local_poses = problem.split() if local_poses is None else local_poses
     optima = []
     for local, start in zip(problem.local_graphs, local_poses, strict=True):
         graph = local.graph
         if problem.outlier_mask is not None:
-            keep = ~problem.outlier_mask[local.edge_ids]
-            graph = graph.replace(
-                tails=graph.tails[keep],
-                heads=graph.heads[keep],
-                measurements=graph.measurements[keep],
-                information=graph.information[keep],
-                kinds=graph.kinds[keep],
-            )
+            graph = graph.edge_subset(~problem.outlier_mask[local.edge_ids])
         optima.append(solve_graph(graph, start, iterations).poses)
     return optima
 

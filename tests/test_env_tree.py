@@ -244,13 +244,7 @@ def test_expert_labels_any_state_and_skips_outliers() -> None:
     kept = ~problem.outlier_mask[local.edge_ids]
     optimum = expert.optimum()[0, agent, : local.num_vertices].numpy()
     graph = local.graph
-    clean = graph.replace(
-        tails=graph.tails[kept],
-        heads=graph.heads[kept],
-        measurements=graph.measurements[kept],
-        information=graph.information[kept],
-        kinds=graph.kinds[kept],
-    )
+    clean = graph.edge_subset(kept)
     with_outliers_optimum = solve_graph(graph, place_separators(problem)[agent], 200).poses
     assert objective.objective(clean, optimum) < 0.5 * objective.objective(
         clean, with_outliers_optimum
