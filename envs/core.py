@@ -146,9 +146,18 @@ def residuals(
 ) -> torch.Tensor:
     """``[r_t, r_θ]`` (``(..., 3)``) as :func:`popbench.objective.residuals`:
     ``r_t = R_pᵀ(t_q − t_p) − t̃`` [m], ``r_θ = wrap(θ_q − θ_p − θ̃)`` [rad]."""
-    relative = between(tail_poses, head_poses)
-    r_t = relative[..., :2] - measurements[..., :2]
-    return torch.cat([r_t, wrap(relative[..., 2:] - measurements[..., 2:])], -1)
+    return _offset(between(tail_poses, head_poses), measurements)
+
+
+def _offset(relative: torch.Tensor, measurements: torch.Tensor) -> torch.Tensor:
+    """``[t − t̃, wrap(θ − θ̃)]`` of relative poses ``(..., 3)`` (the tail of :func:`residuals`)."""
+    return torch.cat(
+        [
+            relative[..., :2] - measurements[..., :2],
+            wrap(relative[..., 2:] - measurements[..., 2:]),
+        ],
+        -1,
+    )
 
 
 def node_features(
@@ -475,7 +484,8 @@ class PGOCore:
         inside = (position >= start) & (position < stop)
         if self.correction == "pose":
             inside = torch.arange(position.shape[1], device=self.device) == mover
-        moved = torch.where(inside.unsqueeze(-1), compose(new, between(old, poses)), poses)
+        transform = compose(new, inverse(old))  # the subtree's rigid motion, world frame
+        moved = torch.where(inside.unsqueeze(-1), compose(transform, poses), poses)
         return moved, inside
 
     def _refresh_boundary(self, inside: torch.Tensor) -> torch.Tensor:
@@ -486,13 +496,13 @@ class PGOCore:
         poses = t["poses"].view(g, -1, 3)
         tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
         crossing = torch.gather(inside, 1, tails) != torch.gather(inside, 1, heads)
-        x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
-        r = residuals(x_p, x_q, t["measurements"].view(g, -1, 3))
-        cost = edge_costs(
-            residuals(x_p, x_q, t["targets"].view(g, -1, 3)),
-            t["kappa"].view(g, -1),
-            t["tau"].view(g, -1),
-        )
+        relative = between(_gather_rows(poses, tails), _gather_rows(poses, heads))
+        r = _offset(relative, t["measurements"].view(g, -1, 3))
+        if self.reward_kind == "F":  # the targets are the measurements
+            target_r = r
+        else:
+            target_r = _offset(relative, t["targets"].view(g, -1, 3))
+        cost = edge_costs(target_r, t["kappa"].view(g, -1), t["tau"].view(g, -1))
         costs = t["costs"].view(g, -1)
         change = torch.where(crossing, cost - costs, torch.zeros_like(cost)).sum(-1)
         old_r = t["residuals"].view(g, -1, 3)
