@@ -11,6 +11,7 @@ Then the per-step cost against the local-graph size, next to a reference measure
 a full recompute of every local residual each step (what a non-incremental step would cost).
 
     .venv/bin/python benchmarks/bench_env.py [--device cuda] [--batch 32] [--robots 7]
+        [--correction subtree] [--observation invariant] [--action-scale whitened]
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import time
 import torch
 
 from envs import make_torchrl_env
-from envs.core import _gather_rows, residuals
+from envs.core import ACTION_SCALES, CORRECTIONS, OBSERVATIONS, _gather_rows, residuals
 
 
 def first_valid_action(env, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -118,10 +119,11 @@ def throughput(args: argparse.Namespace, device: str) -> None:
         seed=0,
         device=device,
         poses_per_robot=args.poses,
+        **modes(args),
     )
     print(
         f"\n[{device}] B={args.batch} problems × n={args.robots} robots × {args.poses} poses;"
-        f" padding {env.dims}"
+        f" padding {env.dims}; {modes(args)}"
     )
     start = time.perf_counter()
     env.reset()
@@ -146,7 +148,12 @@ def scaling(args: argparse.Namespace, device: str) -> None:
     )
     for robots, poses in ((7, 20), (7, 60), (7, 180), (7, 540), (3, 60), (14, 60)):
         env = make_torchrl_env(
-            robots=robots, batch_size=args.batch, seed=0, device=device, poses_per_robot=poses
+            robots=robots,
+            batch_size=args.batch,
+            seed=0,
+            device=device,
+            poses_per_robot=poses,
+            **modes(args),
         )
         seconds, agent_steps = time_core(env, 1)
         core_ms = 1e3 * seconds / (agent_steps / (args.batch * robots))
@@ -159,6 +166,15 @@ def scaling(args: argparse.Namespace, device: str) -> None:
         )
 
 
+def modes(args: argparse.Namespace) -> dict[str, str]:
+    """The env's correction / observation / action-scale options of this run."""
+    return {
+        "correction": args.correction,
+        "observation": args.observation,
+        "action_scale": args.action_scale,
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=32)
@@ -167,6 +183,9 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=2)
     parser.add_argument("--device", action="append", help="cpu and/or cuda (default: all found)")
     parser.add_argument("--no-scaling", action="store_true")
+    parser.add_argument("--correction", default="pose", choices=CORRECTIONS)
+    parser.add_argument("--observation", default="paper", choices=OBSERVATIONS)
+    parser.add_argument("--action-scale", default="metric", choices=ACTION_SCALES)
     parser.add_argument(
         "--threads",
         type=int,
