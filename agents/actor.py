@@ -161,6 +161,7 @@ class HybridActor(nn.Module):
         prev_edge: Tensor,
         prev_delta: Tensor,
         deterministic: bool | None = None,
+        edge: Tensor | None = None,
     ) -> ActorOutput:
         """One decision step for G robots.
 
@@ -171,6 +172,8 @@ class HybridActor(nn.Module):
             prev_delta: [G, 3] previous correction in the environment's units (zeros at reset).
             deterministic: arg-max edge, tanh(mean) correction and noise-free gates; None reads
                 tensordict's interaction type (sampling unless DETERMINISTIC/MODE/MEAN).
+            edge: [G] long, an edge to take instead of choosing one (teacher forcing: the
+                correction is then the one for this edge); None lets the edge head choose.
         """
         deterministic = resolve_deterministic(deterministic)
         encoding = self.encoder(graphs, deterministic)
@@ -186,7 +189,10 @@ class HybridActor(nn.Module):
         )
 
         log_probs = masked_log_softmax(self.edge_head(features).squeeze(-1), graphs.action_mask)
-        edge, edge_weights = self._choose_edge(log_probs, deterministic)
+        if edge is None:
+            edge, edge_weights = self._choose_edge(log_probs, deterministic)
+        else:
+            edge_weights = F.one_hot(edge, log_probs.shape[-1]).to(log_probs.dtype)
         chosen = torch.einsum("ge,ged->gd", edge_weights, features)
 
         mean, log_std = self.correction_head(chosen).chunk(2, dim=-1)

@@ -147,12 +147,68 @@ class ExperimentConfig:
 
 
 @dataclass(frozen=True)
+class TaskConfig:
+    """The environment the actor acts in (envs.core.PGOCore options; BenchMARL's "task").
+
+    Attributes:
+        correction: "pose" (the paper's literal reading: Δ moves the edge's head) or "subtree"
+            (Δ moves the head with its spanning-tree subtree; docs/environment.md).
+        observation: "paper" (poses in the frame of the first owned pose) or "invariant"
+            (poses relative to their tree parent).
+        action_scale: "metric" (Δ in m, rad) or "whitened" (Δ in units of the edge's own
+            standard deviation, Δmax applied after the conversion back).
+
+    The defaults are the paper's environment, which every checkpoint written before these
+    options existed was trained in (a checkpoint without a "task" entry reads as them).
+    """
+
+    correction: str = "pose"
+    observation: str = "paper"
+    action_scale: str = "metric"
+
+    def core_options(self) -> dict[str, str]:
+        """The keyword options of envs.core.PGOCore."""
+        return asdict(self)
+
+
+# The environment of the issue-14 actors (docs/environment.md has the measurements behind it).
+TRAJECTORY_TASK = TaskConfig(correction="subtree", observation="invariant", action_scale="whitened")
+
+
+@dataclass(frozen=True)
+class ImitationConfig:
+    """The imitation phase before GA-SAC (our addition, docs/training.md): DAgger-style
+    behaviour cloning of the expert (envs.expert.Expert) on states the learner visits.
+
+    Attributes:
+        episodes: batched episodes (each of `num_envs` problems) of the phase; 0 skips it.
+        num_envs: problems per batched episode.
+        lr: Adam learning rate of the actor.
+        beta_start, beta_decay: probability that an agent executes the expert's action instead
+            of the learner's, β_k = beta_start · beta_decay^k in episode k (DAgger's mixture; the
+            learner's own states dominate once β is small).
+        delta_weight: weight of the correction loss against the edge loss.
+        seconds: optional wall-clock cap of the phase [s].
+    """
+
+    episodes: int = 0
+    num_envs: int = 16
+    lr: float = 1e-3
+    beta_start: float = 1.0
+    beta_decay: float = 0.9
+    delta_weight: float = 1.0
+    seconds: float | None = None
+
+
+@dataclass(frozen=True)
 class TrainConfig:
-    """The three parts together (what `popbench train` builds and `agents.trainer.train` reads)."""
+    """The parts together (what `popbench train` builds and `agents.trainer.train` reads)."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
     algorithm: AlgorithmConfig = field(default_factory=AlgorithmConfig)
     experiment: ExperimentConfig = field(default_factory=ExperimentConfig)
+    task: TaskConfig = field(default_factory=TaskConfig)
+    imitation: ImitationConfig = field(default_factory=ImitationConfig)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (JSON-serialisable) for checkpoints."""
@@ -165,6 +221,8 @@ class TrainConfig:
             model=_build(ModelConfig, data.get("model", {})),
             algorithm=_build(AlgorithmConfig, data.get("algorithm", {})),
             experiment=_build(ExperimentConfig, data.get("experiment", {})),
+            task=_build(TaskConfig, data.get("task", {})),
+            imitation=_build(ImitationConfig, data.get("imitation", {})),
         )
 
 

@@ -1,0 +1,205 @@
+"""The imitation phase of `popbench train`: DAgger-style behaviour cloning of the expert.
+
+The expert (envs.expert.Expert) knows each agent's local-graph optimum and labels any state: in
+the subtree mode every unprocessed spanning-tree edge is a right choice (a correction there
+changes only that edge's relative pose, so the order does not matter) and the right Δ on an
+edge is the one that gives it the optimum's relative pose (0 on a non-tree edge). On every step
+of a batched episode the learner acts deterministically on the state it is in and is trained on
+the expert's labels of that state (Ross et al. 2011, DAgger, with one gradient step per visited
+state instead of an aggregated dataset):
+
+    L_edge  = −log Σ_{e ∈ right(s)} π(e | s)                      (both heads share the GNN)
+    L_delta = ‖(δ_θ(s, e_learner) − clip(δ*(s, e_learner))) / bound‖²
+
+where ``bound`` is the action bound (Δmax, or the whitened bound). The executed action is the
+expert's with probability β_k = β₀ · decay^k in episode k (per agent), the learner's otherwise,
+so the states drift from the expert's towards the learner's own. The recurrent memory is carried
+along the episode and detached at every step (truncated back-propagation of length one).
+
+The learner never sees the optimum: it enters only the labels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+
+from agents.actor import HybridActor
+from agents.config import ExperimentConfig, ImitationConfig, TaskConfig
+from agents.encoder import GraphBatch
+
+
+@dataclasses.dataclass
+class EpisodeLog:
+    """What one imitation episode measured (means over its steps and acting agents).
+
+    Attributes:
+        episode: index k; beta: β_k.
+        edge_loss, delta_loss: the two losses.
+        right_edge: share of the learner's edge choices that were right.
+        local_gain: share of the local error the executed episode removed, 1 − ΣF_T / ΣF_0.
+        seconds: wall time of the episode [s].
+    """
+
+    episode: int
+    beta: float
+    edge_loss: float
+    delta_loss: float
+    right_edge: float
+    local_gain: float
+    seconds: float
+
+
+def make_core(task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: int):  # noqa: ANN201
+    """(core, sampler): a PGOCore over `batch` synthetic problems of the experiment's kind with
+    measurement reward, and its seeded problem stream."""
+    from envs import make_problem_source
+    from envs.core import PGOCore, ProblemSampler
+
+    source, dims, _ = make_problem_source(
+        experiment.robots, experiment.noise, poses_per_robot=experiment.poses_per_robot
+    )
+    core = PGOCore(experiment.robots, dims, batch, reward="F", **task.core_options())
+    return core, ProblemSampler(source, batch, seed)
+
+
+def graph_batch(core) -> GraphBatch:  # noqa: ANN001
+    """The core's observation as G = B·n graphs."""
+    g = core.batch * core.num_agents
+    observation = core.observation()
+    return GraphBatch(
+        **{key: value.reshape(g, *value.shape[2:]) for key, value in observation.items()},
+        action_mask=core.action_mask().reshape(g, -1),
+    )
+
+
+def right_edges(core) -> torch.Tensor:  # noqa: ANN001
+    """(G, E + 1) bool: the edges the expert counts as right — the unprocessed tree edges where
+    any is left (subtree mode), else every allowed choice."""
+    mask = core.action_mask()
+    if core.correction != "subtree":
+        return mask.reshape(-1, mask.shape[-1])
+    tree = core.tensors["tree_edge"][..., : mask.shape[-1] - 1] & mask[..., :-1]
+    tree = torch.cat([tree, torch.zeros_like(tree[..., :1])], -1)
+    right = torch.where(tree.any(-1, keepdim=True), tree, mask)
+    return right.reshape(-1, mask.shape[-1])
+
+
+def imitation_losses(
+    log_probs: torch.Tensor,
+    right: torch.Tensor,
+    delta: torch.Tensor,
+    label: torch.Tensor,
+    acting: torch.Tensor,
+    bound: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(L_edge, L_delta) of the module docstring, averaged over the G graphs (L_delta over the
+    acting ones).
+
+    Args:
+        log_probs: (G, E + 1) log π(e | s); right: (G, E + 1) bool right choices.
+        delta: (G, 3) the learner's correction on its edge; label: (G, 3) the expert's on it.
+        acting: (G,) bool, the learner chose a real edge (not the no-op).
+        bound: (3,) the action bound.
+    """
+    right_log_prob = torch.logsumexp(log_probs.masked_fill(~right, float("-inf")), -1)
+    edge_loss = -right_log_prob.mean()
+    target = torch.maximum(torch.minimum(label, bound), -bound)
+    squared = (((delta - target) / bound) ** 2).sum(-1)
+    delta_loss = (squared * acting).sum() / acting.sum().clamp(min=1)
+    return edge_loss, delta_loss
+
+
+def imitate(
+    actor: HybridActor,
+    task: TaskConfig,
+    experiment: ExperimentConfig,
+    config: ImitationConfig,
+    on_episode: Callable[[EpisodeLog], None] | None = None,
+    start_episode: int = 0,
+    optimiser: torch.optim.Optimizer | None = None,
+) -> list[EpisodeLog]:
+    """Train `actor` in place by the imitation phase (module docstring).
+
+    Args:
+        actor: the actor (its `delta_max` must equal the core's action bound).
+        task: the environment options; experiment: robots, noise, poses per robot, seed.
+        config: the phase's options.
+        on_episode: told each episode's log (progress, metrics files, checkpoints).
+        start_episode: the first episode index (a resumed phase continues the β schedule and
+            the problem stream where it stopped).
+        optimiser: an Adam over the actor's parameters to continue (resume); a new one if None.
+
+    Returns:
+        The logs of the episodes run.
+    """
+    from envs.expert import Expert
+
+    core, sampler = make_core(task, experiment, config.num_envs, experiment.seed)
+    expert = Expert(core)
+    bound = core.action_bound.to(torch.float32)
+    if not torch.allclose(actor.delta_max, bound):
+        raise ValueError(f"actor delta_max {actor.delta_max.tolist()} ≠ action bound {bound}")
+    optimiser = optimiser or torch.optim.Adam(actor.parameters(), lr=config.lr)
+    generator = torch.Generator().manual_seed(experiment.seed)
+    b, n, e = core.batch, core.num_agents, core.dims.edges
+    g = b * n
+    sampler.episodes[:] = start_episode
+    started = time.perf_counter()
+    logs = []
+    actor.train()
+    for k in range(start_episode, config.episodes):
+        if config.seconds is not None and time.perf_counter() - started > config.seconds:
+            break
+        tick = time.perf_counter()
+        core.load([sampler.draw(element) for element in range(b)], range(b))
+        beta = config.beta_start * config.beta_decay**k
+        memory = actor.initial_memory(g)
+        prev_edge, prev_delta = torch.zeros(g, e + 1), torch.zeros(g, 3)
+        initial_loss = float(core.tensors["loss"].sum())
+        sums = np.zeros(3)
+        steps = int(core.tensors["num_edges"].max())
+        for _ in range(steps):
+            graphs = graph_batch(core)
+            out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
+            right = right_edges(core)
+            with torch.no_grad():
+                label = expert.delta(out.edge.view(b, n)).reshape(g, 3).to(torch.float32)
+                expert_edge = expert.edge()
+                expert_delta = expert.delta(expert_edge).to(torch.float32)
+            acting = out.edge < e
+            edge_loss, delta_loss = imitation_losses(
+                out.edge_log_probs, right, out.delta, label, acting, bound
+            )
+            optimiser.zero_grad()
+            (edge_loss + config.delta_weight * delta_loss).backward()
+            optimiser.step()
+            use_expert = torch.rand(b, n, generator=generator) < beta
+            edge = torch.where(use_expert, expert_edge, out.edge.view(b, n))
+            delta = torch.where(use_expert.unsqueeze(-1), expert_delta, out.delta.view(b, n, 3))
+            delta = delta.detach()
+            core.step(edge, delta)
+            memory = out.memory.detach()
+            prev_edge = F.one_hot(edge.reshape(g), e + 1).to(torch.float32)
+            prev_delta = torch.maximum(torch.minimum(delta.reshape(g, 3), bound), -bound)
+            chosen_right = torch.gather(right, 1, out.edge.unsqueeze(-1)).float().mean()
+            sums += [edge_loss.item(), delta_loss.item(), chosen_right.item()]
+        log = EpisodeLog(
+            episode=k,
+            beta=beta,
+            edge_loss=sums[0] / steps,
+            delta_loss=sums[1] / steps,
+            right_edge=sums[2] / steps,
+            local_gain=1.0 - float(core.tensors["loss"].sum()) / max(initial_loss, 1e-12),
+            seconds=time.perf_counter() - tick,
+        )
+        logs.append(log)
+        if on_episode is not None:
+            on_episode(log)
+    actor.eval()
+    return logs
