@@ -171,6 +171,8 @@ class TaskConfig:
         return asdict(self)
 
 
+# The paper's environment (and that of every checkpoint without a task entry).
+PAPER_TASK = TaskConfig()
 # The environment of the issue-14 actors (docs/environment.md has the measurements behind it).
 TRAJECTORY_TASK = TaskConfig(correction="subtree", observation="invariant", action_scale="whitened")
 

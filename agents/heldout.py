@@ -9,15 +9,13 @@ checkpoint was trained with.
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from agents.checkpoint import load_actor
-from agents.methods import CHECKPOINT_DIR, DEFAULT_CHECKPOINT, run_episode
+from agents.methods import CHECKPOINT_DIR, DEFAULT_CHECKPOINT, cached_actor, run_episode
 from popbench import objective
 from popbench.datasets import file_sha256
 from popbench.distributed import DistributedProblem
@@ -42,11 +40,6 @@ def row_checkpoints(checkpoint: str | Path | None) -> dict[str, tuple[str, str] 
         row: (str(path), file_sha256(path)) if path.is_file() else None
         for row, path in paths.items()
     }
-
-
-@lru_cache(maxsize=4)
-def _actor(path: str):  # noqa: ANN202 - (HybridActor, TrainConfig)
-    return load_actor(path)
 
 
 def episode(problem: DistributedProblem, delta_max: np.ndarray, policy: Policy) -> list:
@@ -103,9 +96,9 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
     if row == "ground-truth":
         return problem.split(problem.graph.ground_truth)
     if row in ("prop-v1", "imitation"):
-        actor, _ = _actor(spec["checkpoint"])
+        actor, task = cached_actor(spec["checkpoint"], "cpu")
         with torch.no_grad():
-            return run_episode(actor, problem).local_poses
+            return run_episode(actor, problem, task=task).local_poses
     raise NotImplementedError(f"held-out row {row!r}")
 
 

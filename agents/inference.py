@@ -277,7 +277,7 @@ class IncrementalPolicy:
             edges: [R] flat edge ids (graph · E + slot) whose residuals changed.
             residuals: [R, 3] their new residuals.
         """
-        if moved.numel() == 0:
+        if moved.numel() == 0 and edges.numel() == 0:
             return
         self.h[0][moved] = features
         self.residuals[edges] = residuals

@@ -8,14 +8,10 @@ prop-v1
        The robots' actors are batched into one forward per step and run incrementally
        (agents.inference.IncrementalPolicy: only the L-hop neighbourhood of the moved poses is
        recomputed).
-    2. Optional (`align_frames=True`; off by default, the paper has no such step): frame
-       alignment (popbench.alignment) — every robot's local estimate is moved rigidly by one
-       SE(2) frame, the frames minimising the assembled F (only the inter-robot edges change),
-       so the consensus starts from maps placed against each other. Why it is off by default
-       (better on held-out synthetic problems, worse on 7 of 8 Table I datasets): the module
-       docstring of popbench.alignment, with the numbers in agents/checkpoints/README.md.
-    3. Information-weighted ADMM consensus over the separators (popbench.consensus) reconciles
-       the copies; the global estimate is the consensus output.
+    2. The consensus (popbench.reconcile, `consensus=`): information-weighted ADMM over the
+       separators (popbench.consensus; the paper's), optionally after a rigid alignment of the
+       robots' frames (popbench.alignment, "aligned-admm"; docs/consensus.md for the choice of
+       the default); the global estimate is its output.
 prop-v2
     prop-v1, then 75 Levenberg–Marquardt iterations (popbench.solvers.lm) from its output.
 
@@ -51,13 +47,13 @@ import torch
 
 from agents.actor import HybridActor
 from agents.checkpoint import load_actor
+from agents.config import PAPER_TASK, TaskConfig
 from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
 from popbench import objective
-from popbench.alignment import align_frames as align_robot_frames
-from popbench.consensus import admm_consensus
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
+from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
 
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "actor-V2-n7.pt"
@@ -84,26 +80,11 @@ class Episode:
 
 
 @lru_cache(maxsize=4)
-def cached_actor(path: str, device: str) -> HybridActor:
-    """The actor of a checkpoint file, loaded once per process."""
-    actor, _ = load_actor(path, device)
-    return actor
-
-
-def moved_vertices(core, heads: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(robots, local vertices) whose features changed after robots moved `heads` [n]: the
-    moved vertex, or every real vertex of a robot that moved its frame vertex 0."""
-    num_vertices = core.dims.vertices
-    acting = heads < num_vertices
-    reframed = acting & (heads == 0)
-    robots = torch.nonzero(acting & ~reframed).squeeze(-1)
-    vertices = heads[robots]
-    if bool(reframed.any()):
-        node_mask = core.tensors["node_mask"][0]
-        extra = torch.nonzero(node_mask & reframed.unsqueeze(-1))
-        robots = torch.cat([robots, extra[:, 0]])
-        vertices = torch.cat([vertices, extra[:, 1]])
-    return robots, vertices
+def cached_actor(path: str, device: str) -> tuple[HybridActor, TaskConfig]:
+    """The actor of a checkpoint file and the environment it was trained in, loaded once per
+    process."""
+    actor, config = load_actor(path, device)
+    return actor, config.task
 
 
 def run_episode(
@@ -112,24 +93,27 @@ def run_episode(
     seconds: float | None = None,
     max_steps: int | None = None,
     on_step: Callable[[int], None] | None = None,
+    task: TaskConfig = PAPER_TASK,
 ) -> Episode:
     """Run the actor for one episode on every robot's local graph (module docstring, step 1);
     `seconds` / `max_steps` cut it short (benchmarks); `on_step`, if given, is told the number
-    of steps done after each step (progress display)."""
+    of steps done after each step (progress display); `task` is the environment the actor was
+    trained in (its checkpoint's)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
     start = time.perf_counter()
     n = problem.num_robots
     dims = Dimensions.of([problem])
-    core = PGOCore(n, dims, 1, delta_max=actor.delta_max.tolist(), reward="F")
+    if task.action_scale == "metric":  # the actor's bound is Δmax itself
+        core_options = {"delta_max": actor.delta_max.tolist()}
+    else:  # the actor's bound is the whitened one; the environment keeps its metric Δmax
+        core_options = {}
+    core = PGOCore(n, dims, 1, reward="F", **core_options, **task.core_options())
     core.load([problem], [0])
     t = core.tensors
-    observation = {key: value.unsqueeze(0) for key, value in core.observation().items()}
-    graphs = GraphBatch(
-        **{key: value.reshape(n, *value.shape[3:]) for key, value in observation.items()},
-        action_mask=core.action_mask()[0],
-    )
+    observation = {key: value[0] for key, value in core.observation().items()}
+    graphs = GraphBatch(**observation, action_mask=core.action_mask()[0])
     policy = IncrementalPolicy(actor, graphs, t["incident"][0])
     num_edges = dims.edges
     edge_ids, edge_mask = t["edge_ids"][0], t["edge_mask"][0]
@@ -147,24 +131,25 @@ def run_episode(
     step_s = []
     horizon = int(t["num_edges"].max())
     horizon = horizon if max_steps is None else min(horizon, max_steps)
-    rows = torch.arange(n)
+    features, residuals = observation["node_features"], observation["residuals"]
     for _ in range(horizon):
         tick = time.perf_counter()
         edge, delta = policy.act(core.action_mask()[0])
-        heads = t["heads"][0][rows, edge]
         core.step(edge.view(1, n), delta.view(1, n, 3))
-        robots, vertices = moved_vertices(core, heads)
-        acting = torch.nonzero(heads < dims.vertices).squeeze(-1)
-        slots = t["incident"][0][acting, heads[acting]]  # [k, D], padding = E
-        owner = acting.unsqueeze(-1).expand_as(slots)
-        real = slots < num_edges
-        owner, slots = owner[real], slots[real]
+        # What the step changed, read off the observation itself, so the incremental update
+        # is right in every environment mode (one moved pose, or a moved subtree whose
+        # boundary edges change; all features of a robot whose frame vertex moved).
+        observation = core.observation()
+        new_features, new_residuals = observation["node_features"][0], observation["residuals"][0]
+        moved = torch.nonzero((new_features != features).any(-1).flatten()).squeeze(-1)
+        changed = torch.nonzero((new_residuals != residuals).any(-1).flatten()).squeeze(-1)
         policy.observe(
-            robots * dims.vertices + vertices,
-            core.vertex_features(robots, vertices),
-            owner * num_edges + slots,
-            t["residuals"][0][owner, slots].to(torch.float32),
+            moved,
+            new_features.flatten(0, 1)[moved],
+            changed,
+            new_residuals.flatten(0, 1)[changed],
         )
+        features, residuals = new_features, new_residuals
         step_s.append(time.perf_counter() - tick)
         history.append(copies_objective())
         if on_step is not None:
@@ -184,67 +169,55 @@ def solve_prop_v1(
     seed: int = 0,
     checkpoint: str | Path | None = None,
     device: str = "cpu",
+    consensus: str = DEFAULT_CONSENSUS,
     consensus_iterations: int = 200,
-    align_frames: bool = False,
     **_: object,
 ) -> Result:
-    """prop-v1: replicated trained actors on every local graph, then ADMM consensus.
+    """prop-v1: replicated trained actors on every local graph, then the consensus.
 
     Args:
         problem: the distributed problem (any number of robots); the episode starts from its
             start, problem.graph.poses.
         budget: see the module docstring (only `seconds` is used).
         seed: seeds torch (inference is deterministic; kept for the interface).
-        checkpoint: actor checkpoint (default: agents/checkpoints/actor-V2-n7.pt).
+        checkpoint: actor checkpoint (default: agents/checkpoints/actor-V2-n7.pt); the episode
+            runs in the environment the checkpoint was trained in (its `task`).
         device: torch device of the actor ("cpu").
+        consensus: one of popbench.reconcile.CONSENSUS_MODES ("admm": the paper's plain ADMM;
+            "aligned-admm": the robots' frames aligned first).
         consensus_iterations: ADMM iterations at most.
-        align_frames: align the robots' frames before the consensus (popbench.alignment);
-            False (default) gives the paper's plain ADMM.
     """
+    check_consensus(consensus)
     budget = budget or Budget()
     started = time.perf_counter()
     torch.manual_seed(seed)
-    actor = cached_actor(str(checkpoint or DEFAULT_CHECKPOINT), device)
+    actor, task = cached_actor(str(checkpoint or DEFAULT_CHECKPOINT), device)
     with torch.no_grad():
-        episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done)
+        episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done, task=task)
     graph = problem.graph
-    f_actor = objective.objective(graph, problem.assemble(episode.local_poses))
-    tic = time.perf_counter()
-    local_poses, alignment_messages = episode.local_poses, 0
-    if align_frames:
-        alignment = align_robot_frames(problem, local_poses)
-        local_poses, alignment_messages = alignment.local_poses, alignment.messages
-    alignment_s = time.perf_counter() - tic
-    consensus = admm_consensus(problem, local_poses, iterations=consensus_iterations)
-    consensus_s = time.perf_counter() - tic
-    costs = objective.evaluate(graph, consensus.poses)
+    reconciled = reconcile(problem, episode.local_poses, consensus, consensus_iterations)
+    costs = objective.evaluate(graph, reconciled.poses)
     history = episode.history.copy()
     history[-1] = costs.F
     n = problem.num_robots
     return Result(
-        poses=consensus.poses,
+        poses=reconciled.poses,
         **costs._asdict(),  # F, F_chordal, chi2
         wall_s=time.perf_counter() - started,
-        parallel_s=(episode.setup_s + float(episode.step_s.sum())) / n
-        + alignment_s
-        + consensus.parallel_s,
+        parallel_s=(episode.setup_s + float(episode.step_s.sum())) / n + reconciled.parallel_s,
         iterations=int(episode.step_s.size),
         history=history,
         inlier_mask=episode.inlier_mask,
-        messages=int(consensus.messages) + alignment_messages,
+        messages=reconciled.messages,
         extras={
-            "F_init": float(episode.history[0]),
-            "F_actor": f_actor,
-            "F_aligned": (
-                objective.objective(graph, problem.assemble(local_poses))
-                if align_frames
-                else f_actor
-            ),
-            "consensus_iterations": int(consensus.iterations),
-            "consensus_converged": bool(consensus.converged),
+            "F_init": objective.objective(graph, graph.poses),
+            "F_actor": reconciled.F_before,
+            "F_aligned": reconciled.F_aligned,
+            "consensus_iterations": reconciled.iterations,
+            "consensus_converged": reconciled.converged,
             "step_ms_mean": 1e3 * float(episode.step_s.mean()) if episode.step_s.size else 0.0,
             "actor_s": episode.setup_s + float(episode.step_s.sum()),
-            "consensus_s": consensus_s,
+            "consensus_s": reconciled.wall_s,
             "flagged_outliers": int(np.count_nonzero(~episode.inlier_mask)),
         },
     )

@@ -43,9 +43,7 @@ def test_a_short_dagger_run_trains_the_actor(tmp_path):
     core, sampler = make_core(TRAJECTORY_TASK, experiment, 1, 0)
     core.load([sampler.draw(0)], [0])
     observation = core.observation()
-    model = dataclasses.replace(
-        tiny_model(), delta_max=tuple(float(v) for v in core.action_bound)
-    )
+    model = dataclasses.replace(tiny_model(), delta_max=tuple(float(v) for v in core.action_bound))
     actor = HybridActor(
         observation["node_features"].shape[-1], observation["edge_attr"].shape[-1], model
     )

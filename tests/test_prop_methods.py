@@ -160,22 +160,24 @@ def test_prop_v2_reaches_the_gtsam_optimum(problem, tiny_checkpoint: Path, tmp_p
 
 
 def test_prop_v1_aligns_the_frames_before_the_consensus(problem, tiny_checkpoint: Path) -> None:
-    """With `align_frames=True` the consensus starts from the aligned maps (lower F than the
-    episode's own); by default the ADMM gets the episode's copies as they are (the paper)."""
-    plain = solve_prop_v1(problem, Budget(), checkpoint=tiny_checkpoint, consensus_iterations=3)
+    """With `consensus="aligned-admm"` the ADMM starts from the aligned maps (lower F than the
+    episode's own); with "admm" it gets the episode's copies as they are (the paper)."""
+    plain = solve_prop_v1(
+        problem, Budget(), checkpoint=tiny_checkpoint, consensus="admm", consensus_iterations=3
+    )
     aligned = solve_prop_v1(
         problem,
         Budget(),
         checkpoint=tiny_checkpoint,
+        consensus="aligned-admm",
         consensus_iterations=3,
-        align_frames=True,
     )
     assert aligned.extras["F_actor"] == plain.extras["F_actor"]  # the same episode
     assert aligned.extras["F_aligned"] < aligned.extras["F_actor"]
     assert plain.extras["F_aligned"] == plain.extras["F_actor"]
     assert aligned.F != plain.F
     assert aligned.messages == plain.messages + problem.separators.size + problem.num_robots - 1
-    assert "align_frames" in method_options("prop-v2")
+    assert "consensus" in method_options("prop-v2")
 
 
 def test_registry_and_the_problem_start(problem, tiny_checkpoint: Path) -> None:
