@@ -6,6 +6,7 @@ choice written down here with its reason (REFERENCES.md §1.8 lists the gaps).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
@@ -157,6 +158,9 @@ class TaskConfig:
             (poses relative to their tree parent).
         action_scale: "metric" (Δ in m, rad) or "whitened" (Δ in units of the edge's own
             standard deviation, Δmax applied after the conversion back).
+        base: "none" (the actor's Δ is the correction) or "gauss-newton" (a residual policy:
+            the environment adds one Gauss–Newton step on the chosen edge, envs.sweep, and the
+            actor's Δ corrects it).
 
     The defaults are the paper's environment, which every checkpoint written before these
     options existed was trained in (a checkpoint without a "task" entry reads as them).
@@ -165,6 +169,7 @@ class TaskConfig:
     correction: str = "pose"
     observation: str = "paper"
     action_scale: str = "metric"
+    base: str = "none"
 
     def core_options(self) -> dict[str, str]:
         """The keyword options of envs.core.PGOCore."""
@@ -174,7 +179,9 @@ class TaskConfig:
 # The paper's environment (and that of every checkpoint without a task entry).
 PAPER_TASK = TaskConfig()
 # The environment of the issue-14 actors (docs/environment.md has the measurements behind it).
-TRAJECTORY_TASK = TaskConfig(correction="subtree", observation="invariant", action_scale="whitened")
+TRAJECTORY_TASK = TaskConfig(
+    correction="subtree", observation="invariant", action_scale="whitened", base="gauss-newton"
+)
 
 
 @dataclass(frozen=True)
@@ -291,4 +298,18 @@ CPU_SMALL = TrainConfig(
         eval_interval=2_048,
     ),
 )
-PRESETS: dict[str, TrainConfig] = {"paper": TrainConfig(), "cpu-small": CPU_SMALL}
+# The issue-14 recipe (docs/training.md): the cpu-small networks in the trajectory-parameterised,
+# scale-free environment with the Gauss–Newton base step, an imitation phase of the expert, then
+# a short GA-SAC fine-tuning from the imitation actor. Budgets fixed before evaluation.
+CPU_IMITATION = TrainConfig(
+    model=CPU_SMALL.model,
+    algorithm=CPU_SMALL.algorithm,
+    experiment=dataclasses.replace(CPU_SMALL.experiment, frames=2_048),
+    task=TRAJECTORY_TASK,
+    imitation=ImitationConfig(episodes=160, num_envs=8, lr=1e-3, beta_decay=0.8),
+)
+PRESETS: dict[str, TrainConfig] = {
+    "paper": TrainConfig(),
+    "cpu-small": CPU_SMALL,
+    "cpu-imitation": CPU_IMITATION,
+}

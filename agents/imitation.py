@@ -21,9 +21,11 @@ The learner never sees the optimum: it enters only the labels.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -88,6 +90,18 @@ def right_edges(core) -> torch.Tensor:  # noqa: ANN001
     tree = torch.cat([tree, torch.zeros_like(tree[..., :1])], -1)
     right = torch.where(tree.any(-1, keepdim=True), tree, mask)
     return right.reshape(-1, mask.shape[-1])
+
+
+def expert_action(core, expert, edge: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
+    """(B, n, 3) float32: the actor output that makes the environment execute the expert's Δ
+    on `edge` (B, n) — the expert's Δ itself, or its difference from the Gauss–Newton base step
+    when the environment adds one (TaskConfig.base)."""
+    delta = expert.delta(edge)
+    if core.base == "gauss-newton":
+        from envs.sweep import gauss_newton_delta
+
+        delta = delta - gauss_newton_delta(core, edge)
+    return delta.to(torch.float32)
 
 
 def imitation_losses(
@@ -169,9 +183,9 @@ def imitate(
             out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
             right = right_edges(core)
             with torch.no_grad():
-                label = expert.delta(out.edge.view(b, n)).reshape(g, 3).to(torch.float32)
+                label = expert_action(core, expert, out.edge.view(b, n)).reshape(g, 3)
                 expert_edge = expert.edge()
-                expert_delta = expert.delta(expert_edge).to(torch.float32)
+                expert_delta = expert_action(core, expert, expert_edge)
             acting = out.edge < e
             edge_loss, delta_loss = imitation_losses(
                 out.edge_log_probs, right, out.delta, label, acting, bound
@@ -203,3 +217,64 @@ def imitate(
             on_episode(log)
     actor.eval()
     return logs
+
+
+IMITATION_CHECKPOINT = "imitation.pt"  # the phase's state, in the run directory
+IMITATION_ACTOR = "imitation-actor.pt"  # the imitation-only actor (load_actor format)
+IMITATION_METRICS = "imitation.csv"
+
+
+def run_phase(session, out_dir: Path) -> None:  # noqa: ANN001 - agents.session.Session
+    """The imitation phase of `popbench train` on `session.actor`, resumable: its state after
+    every episode in ``out_dir/imitation.pt``, one line per episode in ``imitation.csv``, and,
+    once finished, the imitation-only actor in ``imitation-actor.pt`` (what the held-out
+    evaluation's "imitation" row loads). A finished phase only reloads its actor."""
+    from agents.checkpoint import read_checkpoint, save_checkpoint
+
+    config = session.config
+    path, metrics = out_dir / IMITATION_CHECKPOINT, out_dir / IMITATION_METRICS
+    optimiser = torch.optim.Adam(session.actor.parameters(), lr=config.imitation.lr)
+    start = 0
+    if path.is_file():
+        state = read_checkpoint(path, config.experiment.device)
+        session.actor.load_state_dict(state["actor"])
+        optimiser.load_state_dict(state["optimiser"])
+        start = int(state["episodes"])
+        if state["done"]:
+            return
+    elif metrics.exists():
+        metrics.unlink()
+    fields = [field.name for field in dataclasses.fields(EpisodeLog)]
+
+    def save(episodes: int, done: bool) -> None:
+        state = {
+            "config": config.to_dict(),
+            "dims": session.dims,
+            "actor": session.actor.state_dict(),
+            "optimiser": optimiser.state_dict(),
+            "episodes": episodes,
+            "done": done,
+        }
+        save_checkpoint(path, state)
+
+    def record(log: EpisodeLog) -> None:
+        new = not metrics.exists()
+        with metrics.open("a", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=fields)
+            if new:
+                writer.writeheader()
+            writer.writerow(dataclasses.asdict(log))
+        save(log.episode + 1, False)
+
+    imitate(
+        session.actor,
+        config.task,
+        config.experiment,
+        config.imitation,
+        on_episode=record,
+        start_episode=start,
+        optimiser=optimiser,
+    )
+    save(config.imitation.episodes, True)
+    keep = {"config": config.to_dict(), "dims": session.dims, "frames": 0, "updates": 0}
+    save_checkpoint(out_dir / IMITATION_ACTOR, {**keep, "actor": session.actor.state_dict()})

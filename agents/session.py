@@ -46,6 +46,7 @@ def make_env(config: TrainConfig, batch_size: int, seed: int, **options: Any):
         seed=seed,
         device=experiment.device,
         poses_per_robot=experiment.poses_per_robot,
+        **config.task.core_options(),
         **options,
     )
 
@@ -55,7 +56,8 @@ def build_session(config: TrainConfig) -> Session:
     experiment, algorithm = config.experiment, config.algorithm
     torch.manual_seed(experiment.seed)
     base_env = make_env(config, experiment.num_envs, experiment.seed)
-    delta_max = tuple(float(v) for v in base_env.core.delta_max.cpu())
+    # the actor's output bound is the action's: Δmax, or the whitened bound (TaskConfig)
+    delta_max = tuple(float(v) for v in base_env.core.action_bound.cpu())
     config = dataclasses.replace(
         config, model=dataclasses.replace(config.model, delta_max=delta_max)
     )

@@ -8,6 +8,8 @@
                     gate mean (last update of the batch), at eval points eval_f_reduction, and
                     wall_s (seconds of training, summed over resumed calls)
     learning_curve.png, .pdf  episode return and held-out F reduction against frames
+    imitation.pt, imitation.csv, imitation-actor.pt  the imitation phase (agents.imitation),
+                    which runs first when `config.imitation.episodes` > 0
 and returns a `TrainResult` (frames trained by this call, total frames, updates).
 
 Resuming: the checkpoint's config must match the requested one except for the experiment's
@@ -50,6 +52,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from agents.checkpoint import read_checkpoint, save_checkpoint
 from agents.config import TrainConfig
+from agents.imitation import run_phase as run_imitation_phase
 from agents.metrics import METRIC_FIELDS, EpisodeTracker, plot_learning_curve, truncate_metrics
 from agents.resume import check_resume_config
 from agents.session import Session, build_session, make_env, restore, session_state
@@ -114,6 +117,7 @@ class TrainResult:
     frames: int  # total frames of the run (the checkpoint's)
     updates: int  # total optimisation steps of the run
     resumed_from: int  # frames of the checkpoint this call resumed from (0: a new run)
+    wall_s: float = 0.0  # wall time of this call [s], imitation phase included
 
     def __str__(self) -> str:
         return str(self.out_dir)
@@ -123,7 +127,7 @@ class TrainResult:
 
     def summary(self) -> str:
         """One line for the user, e.g. `trained 1024 frames (resumed at 2048; 3072 in total)`."""
-        where = f"run directory {self.out_dir}"
+        where = f"run directory {self.out_dir}; wall time {self.wall_s:.0f} s"
         if self.frames_trained == 0:
             return f"nothing to train: the run already has {self.frames} frames; {where}"
         if self.resumed_from:
@@ -134,6 +138,7 @@ class TrainResult:
 
 def train(config: TrainConfig, resume: bool = True) -> TrainResult:
     """Train GA-SAC as configured (see the module docstring)."""
+    started = time.perf_counter()
     experiment = config.experiment
     out_dir = Path(experiment.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -150,6 +155,8 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
         wall_offset = truncate_metrics(metrics_path, session.frames)
     elif metrics_path.exists():
         metrics_path.unlink()
+    if config.imitation.episodes > 0 and session.frames == 0:  # before any GA-SAC frame
+        run_imitation_phase(session, out_dir)
     resumed_from = session.frames
     remaining = experiment.frames - session.frames
     if remaining > 0:
@@ -157,7 +164,12 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
     save_checkpoint(checkpoint, session_state(session))
     plot_learning_curve(metrics_path, out_dir / "learning_curve")
     return TrainResult(
-        out_dir, session.frames - resumed_from, session.frames, session.updates, resumed_from
+        out_dir,
+        session.frames - resumed_from,
+        session.frames,
+        session.updates,
+        resumed_from,
+        time.perf_counter() - started,
     )
 
 

@@ -88,8 +88,10 @@ def test_resume_after_a_crash_logs_each_batch_once_and_reports_frames(
     assert walls == sorted(walls)  # wall_s continues across the resume
     assert (result.frames_trained, result.frames, result.resumed_from) == (64, 128, 64)
     assert result.summary() == (
-        f"trained 64 frames (resumed at 64; 128 in total); run directory {tmp_path}"
+        f"trained 64 frames (resumed at 64; 128 in total); run directory {tmp_path}; "
+        f"wall time {result.wall_s:.0f} s"
     )
+    assert result.wall_s > 0
     assert str(result) == os.fspath(result) == str(tmp_path)
 
     # Asking for fewer frames than the run has trains nothing and says so.
@@ -104,7 +106,9 @@ def test_frames_trained_counts_whole_batches(tmp_path) -> None:
 
     result = train(tiny(tmp_path, 1), resume=False)
     assert (result.frames_trained, result.frames, result.resumed_from) == (32, 32, 0)
-    assert result.summary() == f"trained 32 frames; run directory {tmp_path}"
+    assert result.summary() == (
+        f"trained 32 frames; run directory {tmp_path}; wall time {result.wall_s:.0f} s"
+    )
 
 
 def test_resume_with_other_options_is_a_one_line_error(tmp_path) -> None:
