@@ -23,8 +23,9 @@ import numpy as np
 import pandas as pd
 
 from popbench.harness.cache import CellCache, code_fingerprint
+from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
-from popbench.harness.runner import Spec, run_cells
+from popbench.harness.runner import Spec, execution_summary, run_cells
 from popbench.metrics import bootstrap_ci
 from popbench.reconcile import DEFAULT_CONSENSUS
 
@@ -213,11 +214,15 @@ def summary_json(table: pd.DataFrame) -> str:
 
 
 def run_heldout(
-    config: HeldoutConfig, *, progress: bool = True, fresh: bool = False
+    config: HeldoutConfig,
+    *,
+    progress: bool = True,
+    fresh: bool = False,
+    execution: Execution | None = None,
 ) -> pd.DataFrame:
-    """Compute (or reuse) every cell, then write ``heldout.csv`` (one line per problem and row),
-    ``summary.csv``, ``heldout.md``, ``heldout.png``/``.pdf`` and ``manifest.json`` into
-    ``config.out``; returns the summary."""
+    """Compute (or reuse) every cell through ``execution`` (default: serially in this process),
+    then write ``heldout.csv`` (one line per problem and row), ``summary.csv``, ``heldout.md``,
+    ``heldout.png``/``.pdf`` and ``manifest.json`` into ``config.out``; returns the summary."""
     started = time.perf_counter()
     unknown = sorted(set(config.rows) - set(ROWS))
     if unknown:
@@ -225,8 +230,10 @@ def run_heldout(
 
         raise ValueRangeError("heldout rows", ",".join(unknown), ", ".join(ROWS))
     cache = CellCache(config.out / "cells")
+    execution = execution or Execution.serial()
+    specs = cell_specs(config)
     frame = pd.DataFrame(
-        run_cells(cell_specs(config), compute_cell, cache, progress=progress, fresh=fresh)
+        run_cells(specs, compute_cell, cache, execution=execution, progress=progress, fresh=fresh)
     )
     table = summary(frame)
     config.out.mkdir(parents=True, exist_ok=True)
@@ -234,5 +241,9 @@ def run_heldout(
     table.to_csv(config.out / "summary.csv", index=False, float_format="%.10g")
     (config.out / "heldout.md").write_text(markdown(table))
     figure(frame, config.out / "heldout")
-    write_manifest(config.out, wall_s=time.perf_counter() - started)
+    write_manifest(
+        config.out,
+        wall_s=time.perf_counter() - started,
+        execution=execution_summary(execution, cache, specs),
+    )
     return table
