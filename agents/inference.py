@@ -283,6 +283,19 @@ class IncrementalPolicy:
         self.residuals[edges] = residuals
         self._propagate(moved, edges)
 
+    def observe_step(self, before: dict[str, Tensor], after: dict[str, Tensor]) -> None:
+        """Apply what a step changed, read off the observations before and after it (one batch
+        element: node_features [G, V, d_v], residuals [G, E, 3]); right in every environment
+        mode — one moved pose, a moved subtree whose boundary edges change, or a robot whose
+        frame vertex moved."""
+        features, residuals = after["node_features"], after["residuals"]
+        moved = torch.nonzero((features != before["node_features"]).any(-1).flatten())
+        changed = torch.nonzero((residuals != before["residuals"]).any(-1).flatten())
+        moved, changed = moved.squeeze(-1), changed.squeeze(-1)
+        self.observe(
+            moved, features.flatten(0, 1)[moved], changed, residuals.flatten(0, 1)[changed]
+        )
+
     def inliers(self, threshold: float = 0.5) -> Tensor:
         """[G, E] bool: layer-averaged gate > threshold (encoder.Encoding.inliers)."""
         g, _, e = self.shape

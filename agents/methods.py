@@ -131,25 +131,13 @@ def run_episode(
     step_s = []
     horizon = int(t["num_edges"].max())
     horizon = horizon if max_steps is None else min(horizon, max_steps)
-    features, residuals = observation["node_features"], observation["residuals"]
     for _ in range(horizon):
         tick = time.perf_counter()
         edge, delta = policy.act(core.action_mask()[0])
         core.step(edge.view(1, n), delta.view(1, n, 3))
-        # What the step changed, read off the observation itself, so the incremental update
-        # is right in every environment mode (one moved pose, or a moved subtree whose
-        # boundary edges change; all features of a robot whose frame vertex moved).
-        observation = core.observation()
-        new_features, new_residuals = observation["node_features"][0], observation["residuals"][0]
-        moved = torch.nonzero((new_features != features).any(-1).flatten()).squeeze(-1)
-        changed = torch.nonzero((new_residuals != residuals).any(-1).flatten()).squeeze(-1)
-        policy.observe(
-            moved,
-            new_features.flatten(0, 1)[moved],
-            changed,
-            new_residuals.flatten(0, 1)[changed],
-        )
-        features, residuals = new_features, new_residuals
+        after = {key: value[0] for key, value in core.observation().items()}
+        policy.observe_step(observation, after)
+        observation = after
         step_s.append(time.perf_counter() - tick)
         history.append(copies_objective())
         if on_step is not None:

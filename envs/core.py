@@ -58,6 +58,12 @@ Action scale (``action_scale=``)
     ``log diag Λ`` attributes are centred on the agent's mean, so the actor sees no absolute
     noise scale.
 
+Base step (``base=``)
+    ``"none"``: the action's ``Δ`` is the correction. ``"gauss-newton"``: a residual action — the
+    environment first computes one Gauss–Newton step on the chosen edge (the Δ of
+    :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
+    and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step.
+
 Localisation error ``L`` of agent ``i`` (reward signal)
     ``L_i(x) = Σ_{e ∈ E_i} κ_e wrap(θ_q − θ_p − θ*_e)² + τ_e ‖R(θ_p)ᵀ(t_q − t_p) − t*_e‖²``
     over the agent's local edges, with its own copies of the poses and the κ/τ weights of F.
@@ -97,13 +103,13 @@ from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs
 
-_FEATURE_KEYS = ("poses", "log_degree", "owned", "node_mask", "tree_parent")
 DEFAULT_DELTA_MAX = (0.5, 0.5, 0.3)  # (δx [m], δy [m], δθ [rad])
 EPSILON = 1e-6  # ε of the reward's normalisation and terminal log-ratio
 INVALID_EDGE_MODES = ("raise", "repair")
 CORRECTIONS = ("pose", "subtree")
 OBSERVATIONS = ("paper", "invariant")
 ACTION_SCALES = ("metric", "whitened")
+BASES = ("none", "gauss-newton")
 WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened action
 
 ProblemSource = Callable[[int], DistributedProblem]
@@ -273,6 +279,7 @@ class PGOCore:
         observation: str = "paper",
         action_scale: str = "metric",
         place_separators: bool | None = None,
+        base: str = "none",
     ) -> None:
         for name, value, allowed in (
             ("correction", correction, CORRECTIONS),
@@ -287,6 +294,9 @@ class PGOCore:
             action_scale,
         )
         self.place = correction == "subtree" if place_separators is None else place_separators
+        if base not in BASES:
+            raise ValueRangeError("base", base, ", ".join(BASES))
+        self.base = base
         if reward not in REWARDS:
             raise ValueRangeError("reward", reward, ", ".join(REWARDS))
         if invalid_edge not in INVALID_EDGE_MODES:
@@ -420,7 +430,12 @@ class PGOCore:
         poses = t["poses"].view(g, -1, 3)
         tail = torch.gather(t["tails"].view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
         head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
-        clipped = self.metric_delta(flat_edge, delta.to(self.device, self.dtype).reshape(g, 1, 3))
+        delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
+        if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
+            from envs.sweep import gauss_newton_delta
+
+            delta = delta + gauss_newton_delta(self, edge)
+        clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t["loss"].clone()
         if self.correction == "subtree":
             moved, inside = self.subtree_move(poses, flat_edge, clipped)
@@ -563,24 +578,6 @@ class PGOCore:
             "processed": t["processed"][..., :e].clone(),
             "residuals": self._observed_residuals().to(torch.float32),
         }
-
-    def vertex_features(
-        self, robots: torch.Tensor, vertices: torch.Tensor, element: int = 0
-    ) -> torch.Tensor:
-        """``(S, 6)`` float32 :func:`node_features` of local ``vertices (S,)`` of ``robots (S,)``
-        in batch element ``element`` (the rows of ``observation()["node_features"]``)."""
-        t = {k: t[element] for k, t in self.tensors.items() if k in _FEATURE_KEYS}
-        if self.observation_mode == "invariant":
-            frame = t["poses"][robots, t["tree_parent"][robots, vertices]]
-        else:
-            frame = t["poses"][robots, 0]
-        return node_features(
-            frame,
-            t["poses"][robots, vertices],
-            t["log_degree"][robots, vertices],
-            t["owned"][robots, vertices],
-            t["node_mask"][robots, vertices],
-        )
 
     def _observed_residuals(self) -> torch.Tensor:
         """``(B, n, E, 3)`` residuals as observed: metric, or ``Λ^½ r`` when whitened."""

@@ -32,49 +32,56 @@ class GaussNewtonSweep:
         self.core = core
         self.order = Expert(core)  # only its edge order is used (no optimum is computed)
 
-    def _whitened_errors(self, poses: torch.Tensor) -> torch.Tensor:
-        """``(G, E+1, 3)`` ``[√τ r_t, √κ r_θ]`` of every edge slot against the measurements."""
-        t = self.core.tensors
-        g = poses.shape[0]
-        tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
-        r = residuals(
-            _gather_rows(poses, tails), _gather_rows(poses, heads), t["measurements"].view(g, -1, 3)
-        )
-        scale = torch.stack([t["tau"].view(g, -1).sqrt()] * 2 + [t["kappa"].view(g, -1).sqrt()], -1)
-        return r * scale
-
     def delta(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` one Gauss–Newton Δ per agent on ``edge (B, n)`` (0 off the tree), in
-        the core's action units."""
-        core, t = self.core, self.core.tensors
-        g = core.batch * core.num_agents
-        flat_edge = edge.to(core.device, torch.int64).reshape(g, 1)
-        poses = t["poses"].view(g, -1, 3)
-        probes = torch.cat(
-            [torch.zeros(1, 3, dtype=core.dtype), STEP * torch.eye(3, dtype=core.dtype)]
-        ).to(core.device)  # (4, 3): Δ = 0 and the three unit steps
-        errors = []
-        for probe in probes:  # four evaluations, each vectorised over every agent and edge
-            moved, _ = core.subtree_move(poses, flat_edge, probe.expand(g, 1, 3))
-            errors.append(self._whitened_errors(moved).flatten(1))
-        e0 = errors[0]
-        jacobian = torch.stack([(value - e0) / STEP for value in errors[1:]], -1)  # (G, 3E', 3)
-        normal = jacobian.transpose(1, 2) @ jacobian
-        scale = normal.diagonal(dim1=1, dim2=2).amax(-1).clamp_min(1.0)
-        eye = torch.eye(3, dtype=core.dtype, device=core.device)
-        normal = normal + DAMPING * scale[:, None, None] * eye
-        step = -torch.linalg.solve(normal, (jacobian.transpose(1, 2) @ e0.unsqueeze(-1)))
-        step = step.squeeze(-1)
-        on_tree = torch.gather(t["tree_edge"].view(g, -1), 1, flat_edge)
-        if core.correction == "pose":
-            on_tree = flat_edge < core.dims.edges
-        step = torch.where(on_tree, step, torch.zeros_like(step))
-        if core.action_scale == "whitened":
-            root = _gather_rows(t["sqrt_information"].view(g, -1, 3, 3), flat_edge)
-            step = (root @ step.view(g, 1, 3, 1)).view(g, 3)
-        return step.view(core.batch, core.num_agents, 3)
+        the core's action units (:func:`gauss_newton_delta`)."""
+        return gauss_newton_delta(self.core, edge)
 
     def act(self) -> tuple[torch.Tensor, torch.Tensor]:
         """The policy's joint action ``(edge (B, n), delta (B, n, 3))``."""
         edge = self.order.edge()
         return edge, self.delta(edge)
+
+
+def gauss_newton_delta(core: PGOCore, edge: torch.Tensor) -> torch.Tensor:
+    """``(B, n, 3)`` one Gauss–Newton Δ per agent on ``edge (B, n)`` (0 off the tree), in
+    the core's action units."""
+    t = core.tensors
+    g = core.batch * core.num_agents
+    flat_edge = edge.to(core.device, torch.int64).reshape(g, 1)
+    poses = t["poses"].view(g, -1, 3)
+    probes = torch.cat(
+        [torch.zeros(1, 3, dtype=core.dtype), STEP * torch.eye(3, dtype=core.dtype)]
+    ).to(core.device)  # (4, 3): Δ = 0 and the three unit steps
+    errors = []
+    for probe in probes:  # four evaluations, each vectorised over every agent and edge
+        moved, _ = core.subtree_move(poses, flat_edge, probe.expand(g, 1, 3))
+        errors.append(_whitened_errors(core, moved).flatten(1))
+    e0 = errors[0]
+    jacobian = torch.stack([(value - e0) / STEP for value in errors[1:]], -1)  # (G, 3E', 3)
+    normal = jacobian.transpose(1, 2) @ jacobian
+    scale = normal.diagonal(dim1=1, dim2=2).amax(-1).clamp_min(1.0)
+    eye = torch.eye(3, dtype=core.dtype, device=core.device)
+    normal = normal + DAMPING * scale[:, None, None] * eye
+    step = -torch.linalg.solve(normal, (jacobian.transpose(1, 2) @ e0.unsqueeze(-1)))
+    step = step.squeeze(-1)
+    on_tree = torch.gather(t["tree_edge"].view(g, -1), 1, flat_edge)
+    if core.correction == "pose":
+        on_tree = flat_edge < core.dims.edges
+    step = torch.where(on_tree, step, torch.zeros_like(step))
+    if core.action_scale == "whitened":
+        root = _gather_rows(t["sqrt_information"].view(g, -1, 3, 3), flat_edge)
+        step = (root @ step.view(g, 1, 3, 1)).view(g, 3)
+    return step.view(core.batch, core.num_agents, 3)
+
+
+def _whitened_errors(core: PGOCore, poses: torch.Tensor) -> torch.Tensor:
+    """``(G, E+1, 3)`` ``[√τ r_t, √κ r_θ]`` of every edge slot against the measurements."""
+    t = core.tensors
+    g = poses.shape[0]
+    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    r = residuals(
+        _gather_rows(poses, tails), _gather_rows(poses, heads), t["measurements"].view(g, -1, 3)
+    )
+    scale = torch.stack([t["tau"].view(g, -1).sqrt()] * 2 + [t["kappa"].view(g, -1).sqrt()], -1)
+    return r * scale

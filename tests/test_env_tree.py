@@ -14,6 +14,7 @@ from envs.observation import Dimensions
 from envs.sweep import GaussNewtonSweep
 from envs.tree import place_separators, spanning_tree
 from popbench import objective, se2
+from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind
 from popbench.outliers import with_outliers
 from popbench.solvers.lm import solve_graph
@@ -260,6 +261,33 @@ def test_gauss_newton_sweep_lowers_local_F() -> None:
         start = core.tensors["loss"].sum(-1).clone()
         run_episode(core, GaussNewtonSweep(core))
         assert bool((core.tensors["loss"].sum(-1) < 0.8 * start).all())
+
+
+def test_gauss_newton_base_adds_one_sweep_step_to_the_action() -> None:
+    """base="gauss-newton": a zero action executes the sweep's Δ (the same episode as the sweep
+    policy in a plain core); the expert's residual on top of it executes the expert's Δ."""
+    from envs.sweep import gauss_newton_delta
+
+    problems = [make_problem(seed=seed, **SMALL) for seed in (15, 16)]
+    modes = {"correction": "subtree", "action_scale": "whitened", "reward": "F"}
+    plain, based = make_core(problems, **modes), make_core(problems, **modes, base="gauss-newton")
+    sweep = GaussNewtonSweep(plain)
+    for _ in range(int(plain.tensors["num_edges"].max())):
+        edge, delta = sweep.act()
+        plain.step(edge, delta)
+        based.step(edge, torch.zeros_like(delta))
+    assert torch.allclose(plain.tensors["poses"], based.tensors["poses"], atol=1e-12)
+    expert_core = make_core(problems, **modes)
+    residual_core = make_core(problems, **modes, base="gauss-newton")
+    expert, residual_expert = Expert(expert_core), Expert(residual_core)
+    for _ in range(int(expert_core.tensors["num_edges"].max())):
+        edge, delta = expert.act()
+        expert_core.step(edge, delta)
+        residual = residual_expert.delta(edge) - gauss_newton_delta(residual_core, edge)
+        residual_core.step(edge, residual)
+    assert torch.allclose(expert_core.tensors["poses"], residual_core.tensors["poses"], atol=1e-9)
+    with pytest.raises(ValueRangeError, match="gauss-newton"):
+        make_core(problems, base="newton")
 
 
 @pytest.mark.parametrize("modes", MODES)

@@ -17,7 +17,6 @@ from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
 from agents.methods import (
     DEFAULT_CHECKPOINT,
-    moved_vertices,
     solve_prop_v1,
     solve_prop_v2,
 )
@@ -59,9 +58,23 @@ def problem():
     return make_problem(robots=3, noise="V2", poses_per_robot=20, seed=5)
 
 
-def test_incremental_inference_equals_full_forward(problem) -> None:
+@pytest.mark.parametrize(
+    "modes",
+    [
+        {},
+        {"correction": "subtree", "observation": "invariant", "action_scale": "whitened"},
+        {
+            "correction": "subtree",
+            "observation": "invariant",
+            "action_scale": "whitened",
+            "base": "gauss-newton",
+        },
+    ],
+)
+def test_incremental_inference_equals_full_forward(problem, modes: dict) -> None:
     """Every step's decision of IncrementalPolicy equals HybridActor.forward on the full
-    observation (fresh full GNN pass per step), and so do the final gates."""
+    observation (fresh full GNN pass per step), and so do the final gates, in the paper's
+    environment and in the subtree ones."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
@@ -72,16 +85,15 @@ def test_incremental_inference_equals_full_forward(problem) -> None:
     torch.nn.init.normal_(actor.correction_head[-1].weight, std=0.5)
     n = problem.num_robots
     dims = Dimensions.of([problem])
-    core = PGOCore(n, dims, 1, delta_max=TINY.delta_max, reward="F")
+    core = PGOCore(n, dims, 1, delta_max=TINY.delta_max, reward="F", **modes)
     core.load([problem], [0])
     t = core.tensors
 
+    def observation() -> dict[str, torch.Tensor]:
+        return {key: value[0] for key, value in core.observation().items()}
+
     def full_graphs() -> GraphBatch:
-        obs = core.observation()
-        return GraphBatch(
-            **{k: v.reshape(n, *v.shape[2:]) for k, v in obs.items()},
-            action_mask=core.action_mask()[0],
-        )
+        return GraphBatch(**observation(), action_mask=core.action_mask()[0])
 
     policy = IncrementalPolicy(actor, full_graphs(), t["incident"][0])
     memory = actor.initial_memory(n)
@@ -96,23 +108,14 @@ def test_incremental_inference_equals_full_forward(problem) -> None:
             assert torch.equal(edge, reference.edge)
             torch.testing.assert_close(delta, reference.delta, atol=1e-5, rtol=1e-4)
             memory, prev_edge, prev_delta = reference.memory, reference.edge_weights, delta
-            heads = t["heads"][0][rows, edge]
-            reframes += int((heads == 0).sum())
+            reframes += int((t["heads"][0][rows, edge] == 0).sum())
+            before = observation()
             core.step(edge.view(1, n), delta.view(1, n, 3))
-            robots, vertices = moved_vertices(core, heads)
-            acting = torch.nonzero(heads < dims.vertices).squeeze(-1)
-            slots = t["incident"][0][acting, heads[acting]]
-            owner = acting.unsqueeze(-1).expand_as(slots)
-            real = slots < dims.edges
-            policy.observe(
-                robots * dims.vertices + vertices,
-                core.vertex_features(robots, vertices),
-                owner[real] * dims.edges + slots[real],
-                t["residuals"][0][owner[real], slots[real]].float(),
-            )
+            policy.observe_step(before, observation())
         final = actor(full_graphs(), memory, prev_edge, prev_delta, deterministic=True)
     assert torch.equal(policy.inliers(), final.encoding.inliers() & t["edge_mask"][0])
-    assert reframes > 0  # the frame-vertex path (whole-graph refresh) was exercised
+    if not modes:
+        assert reframes > 0  # the frame-vertex path (whole-graph refresh) was exercised
 
 
 def test_prop_v1_result_fields(problem, tiny_checkpoint: Path) -> None:
