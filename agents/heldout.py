@@ -2,12 +2,15 @@
 robots' local graphs before the shared consensus (popbench.reconcile).
 
 Every policy row runs one episode of the environment (envs.core.PGOCore, the paper's horizon:
-each local edge once) from the same start; the learned rows use the environment options their
-checkpoint was trained with.
+each local edge once) from the same start, with the separator copies placed from their owned
+neighbours (envs.tree.place_separators; the no-op row is that placement alone). The non-learned
+rows act in :data:`POLICY_TASK`; the learned rows in the environment their checkpoint was
+trained with.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from agents.config import TRAJECTORY_TASK
 from agents.methods import CHECKPOINT_DIR, DEFAULT_CHECKPOINT, cached_actor, run_episode
 from popbench import objective
 from popbench.datasets import file_sha256
@@ -25,8 +29,9 @@ from popbench.solvers.local_lm import local_optima
 from popbench.synthetic import make_problem
 
 IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7.pt"
-# Δmax of the hand-made policies when no actor says otherwise (the paper's training bound).
-DEFAULT_DELTA_MAX = (0.5, 0.5, 0.2)
+# The environment of the non-learned policy rows: the trajectory task without the base step
+# (each row's Δ is its own).
+POLICY_TASK = dataclasses.replace(TRAJECTORY_TASK, base="none")
 
 Policy = Callable[[Any], tuple[torch.Tensor, torch.Tensor]]
 
@@ -42,55 +47,80 @@ def row_checkpoints(checkpoint: str | Path | None) -> dict[str, tuple[str, str] 
     }
 
 
-def episode(problem: DistributedProblem, delta_max: np.ndarray, policy: Policy) -> list:
-    """The robots' local copies after one episode driven by ``policy(core) -> (edge [n],
-    delta [n, 3])``."""
+def episode(problem: DistributedProblem, policy: Callable[[Any], Policy]) -> list:
+    """The robots' local copies after one episode of the non-learned rows' environment
+    (:data:`POLICY_TASK`, separators placed) driven by ``policy(core)``, a function of the core
+    returning the per-step policy ``step(core) -> (edge [n], delta [n, 3])``."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
     n = problem.num_robots
-    core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=list(delta_max), reward="F")
+    core = PGOCore(n, Dimensions.of([problem]), 1, reward="F", **POLICY_TASK.core_options())
     core.load([problem], [0])
+    step = policy(core)
     for _ in range(int(core.tensors["num_edges"].max())):
-        edge, delta = policy(core)
+        edge, delta = step(core)
         core.step(torch.as_tensor(edge).view(1, n), torch.as_tensor(delta).view(1, n, 3))
     return core.local_poses(0)
 
 
-def random_policy(rng: np.random.Generator, delta_max: np.ndarray) -> Policy:
-    """A uniformly random unprocessed edge and a uniform Δ in [−Δmax, Δmax]."""
+def random_policy(rng: np.random.Generator) -> Callable[[Any], Policy]:
+    """A uniformly random unprocessed edge and a uniform Δ within the action bound."""
+
+    def make(core):  # noqa: ANN001, ANN202
+        bound = core.action_bound.numpy()
+
+        def policy(core):  # noqa: ANN001, ANN202
+            mask = core.action_mask()[0].numpy()
+            scores = np.where(mask, rng.random(mask.shape), -1.0)
+            return scores.argmax(-1), rng.uniform(-bound, bound, (mask.shape[0], 3))
+
+        return policy
+
+    return make
+
+
+def greedy_policy(fraction: float = 0.5) -> Callable[[Any], Policy]:
+    """The first unprocessed edge, Δ = −fraction · its observed residual (in the action's units;
+    the environment clips Δ)."""
 
     def policy(core):  # noqa: ANN001, ANN202
-        mask = core.action_mask()[0].numpy()
-        scores = np.where(mask, rng.random(mask.shape), -1.0)
-        return scores.argmax(-1), rng.uniform(-delta_max, delta_max, (mask.shape[0], 3))
-
-    return policy
-
-
-def greedy_policy(fraction: float = 0.5) -> Policy:
-    """The first unprocessed edge, Δ = −fraction · its residual (the environment clips Δ)."""
-
-    def policy(core):  # noqa: ANN001, ANN202
-        residuals = core.tensors["residuals"][0]  # (n, E, 3), in each edge's tail frame
+        residuals = core.observation()["residuals"][0]  # (n, E, 3), in each edge's tail frame
         edge = core.action_mask()[0].to(torch.int8).argmax(-1)  # E (no-op) once all are done
         acting = (edge < residuals.shape[1]).unsqueeze(-1)
         r = residuals[torch.arange(edge.numel()), edge.clamp(max=residuals.shape[1] - 1)]
         return edge, torch.where(acting, -fraction * r, torch.zeros_like(r))
 
-    return policy
+    return lambda core: policy
+
+
+def class_policy(kind: type) -> Callable[[Any], Policy]:
+    """A policy object of the environment (envs.expert.Expert, envs.sweep.GaussNewtonSweep)
+    acting on its own core."""
+
+    def make(core):  # noqa: ANN001, ANN202
+        agent = kind(core)
+        return lambda core: tuple(value[0] for value in agent.act())
+
+    return make
 
 
 def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any]) -> list:
     """The robots' local copies that ``row`` hands to the consensus."""
-    delta_max = np.array(DEFAULT_DELTA_MAX)
+    from envs.expert import Expert
+    from envs.sweep import GaussNewtonSweep
+    from envs.tree import place_separators
+
     if row == "no-op":
-        return problem.split()
+        return place_separators(problem)
     if row == "random":
-        rng = np.random.default_rng(spec["problem_seed"])
-        return episode(problem, delta_max, random_policy(rng, delta_max))
+        return episode(problem, random_policy(np.random.default_rng(spec["problem_seed"])))
     if row == "greedy":
-        return episode(problem, delta_max, greedy_policy())
+        return episode(problem, greedy_policy())
+    if row == "gn-sweep":
+        return episode(problem, class_policy(GaussNewtonSweep))
+    if row == "expert":
+        return episode(problem, class_policy(Expert))
     if row == "local-lm":
         return local_optima(problem)[0]
     if row == "ground-truth":

@@ -33,7 +33,7 @@ import torch
 from envs.core import PGOCore, _gather_rows, between, wrap
 from envs.tree import place_separators
 from popbench.distributed import DistributedProblem
-from popbench.solvers.lm import solve_graph
+from popbench.solvers.local_lm import local_optima as solve_local_graphs
 
 LM_ITERATIONS = 200
 
@@ -44,17 +44,10 @@ def local_optima(
     iterations: int = LM_ITERATIONS,
 ) -> list[np.ndarray]:
     """Each agent's local-graph optimum ``[(n_r, 3)]`` (LM from ``local_poses``, default the
-    initial copies; local vertex 0 fixed; injected outliers left out). As
-    :func:`popbench.solvers.local_lm.local_optima`, but from the episode's own start (placed
-    separator copies differ per agent, so they are not one global estimate)."""
-    local_poses = problem.split() if local_poses is None else local_poses
-    optima = []
-    for local, start in zip(problem.local_graphs, local_poses, strict=True):
-        graph = local.graph
-        if problem.outlier_mask is not None:
-            graph = graph.edge_subset(~problem.outlier_mask[local.edge_ids])
-        optima.append(solve_graph(graph, start, iterations).poses)
-    return optima
+    initial copies; local vertex 0 fixed; injected outliers left out): the expert's target,
+    :func:`popbench.solvers.local_lm.local_optima` from the episode's own start."""
+    starts = None if local_poses is None else list(local_poses)
+    return solve_local_graphs(problem, iterations, problem.outlier_mask, starts)[0]
 
 
 class Expert:

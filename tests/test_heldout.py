@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from popbench.harness import heldout
 
-ROWS = ("initial", "no-op", "greedy", "local-lm", "ground-truth")
+ROWS = ("initial", "no-op", "random", "greedy", "gn-sweep", "expert", "local-lm", "ground-truth")
 
 
 @pytest.fixture(scope="module")
@@ -30,6 +31,10 @@ def test_summary_rows_and_references(small_run):
     assert low <= by_row.loc["no-op", "F_median"] <= high
     # the ground truth through the consensus is far better than the odometry start
     assert by_row.loc["ground-truth", "F_median"] < by_row.loc["initial", "F_median"]
+    # the expert brings every local graph to its optimum: the same copies as local-lm's
+    frame = pd.read_csv(config.out / "heldout.csv").set_index(["problem_seed", "row"])
+    expert, local = frame.xs("expert", level="row"), frame.xs("local-lm", level="row")
+    assert np.allclose(expert["F_local"], local["F_local"], rtol=1e-4)
     for name in ("heldout.csv", "summary.csv", "heldout.md", "heldout.png", "manifest.json"):
         assert (config.out / name).is_file()
 

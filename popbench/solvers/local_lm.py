@@ -24,27 +24,30 @@ def local_optima(
     problem: DistributedProblem,
     iterations: int = LOCAL_ITERATIONS,
     excluded: np.ndarray | None = None,
+    starts: list[np.ndarray] | None = None,
 ) -> tuple[list[np.ndarray], np.ndarray]:
-    """Every robot's local graph solved by LM from the problem's start (its first owned pose
-    fixed).
+    """Every robot's local graph solved by LM (its first owned pose fixed).
 
     Args:
-        problem: the distributed problem; ``graph.poses`` is the start.
+        problem: the distributed problem.
         iterations: LM steps at most per robot.
         excluded: ``(M,)`` bool over the global edges, True for edges left out of every local
             graph (e.g. injected outliers when the optimum serves as an expert's target), or None.
+        starts: one ``(n_r, 3)`` start per robot (e.g. with placed separator copies); default
+            the problem's start, ``problem.split()``.
 
     Returns:
         ``(local_poses, seconds)``: one ``(n_r, 3)`` optimum per robot (rows in
         ``local_vertices(r)`` order) and ``(n,)`` each robot's LM wall time [s].
     """
+    starts = problem.split() if starts is None else starts
     local_poses, seconds = [], np.zeros(problem.num_robots)
-    for local in problem.local_graphs:
+    for local, start in zip(problem.local_graphs, starts, strict=True):
         graph = local.graph
         if excluded is not None:
             graph = graph.edge_subset(~excluded[local.edge_ids])
         started = time.perf_counter()
-        local_poses.append(solve_graph(graph, local.graph.poses, iterations).poses)
+        local_poses.append(solve_graph(graph, start, iterations).poses)
         seconds[local.robot] = time.perf_counter() - started
     return local_poses, seconds
 
