@@ -303,10 +303,11 @@ CPU_SMALL = TrainConfig(
 # a short GA-SAC fine-tuning from the imitation actor. Budgets fixed before evaluation.
 CPU_IMITATION = TrainConfig(
     model=CPU_SMALL.model,
-    algorithm=CPU_SMALL.algorithm,
-    experiment=dataclasses.replace(CPU_SMALL.experiment, frames=2_048),
+    # 4,096 frames give 384 updates after the 1,024-frame warm-up; 128 of them critic-only
+    algorithm=dataclasses.replace(CPU_SMALL.algorithm, critic_warmup_updates=128),
+    experiment=dataclasses.replace(CPU_SMALL.experiment, frames=4_096),
     task=TRAJECTORY_TASK,
-    imitation=ImitationConfig(episodes=160, num_envs=8, lr=1e-3, beta_decay=0.8),
+    imitation=ImitationConfig(episodes=100, num_envs=8, lr=1e-3, beta_decay=0.8),
 )
 PRESETS: dict[str, TrainConfig] = {
     "paper": TrainConfig(),
