@@ -36,11 +36,16 @@ POLICY_TASK = dataclasses.replace(TRAJECTORY_TASK, base="none")
 Policy = Callable[[Any], tuple[torch.Tensor, torch.Tensor]]
 
 
-def row_checkpoints(checkpoint: str | Path | None) -> dict[str, tuple[str, str] | None]:
+def row_checkpoints(
+    checkpoint: str | Path | None, imitation: str | Path | None = None
+) -> dict[str, tuple[str, str] | None]:
     """``{row: (path, sha256)}`` of the learned rows (None where the file does not exist):
-    ``prop-v1`` = ``checkpoint`` (default: the committed actor), ``imitation`` = the committed
-    imitation-only actor."""
-    paths = {"prop-v1": Path(checkpoint or DEFAULT_CHECKPOINT), "imitation": IMITATION_CHECKPOINT}
+    ``prop-v1`` = ``checkpoint`` (default: the committed actor), ``imitation`` = ``imitation``
+    (default: the committed imitation-only actor)."""
+    paths = {
+        "prop-v1": Path(checkpoint or DEFAULT_CHECKPOINT),
+        "imitation": Path(imitation or IMITATION_CHECKPOINT),
+    }
     return {
         row: (str(path), file_sha256(path)) if path.is_file() else None
         for row, path in paths.items()

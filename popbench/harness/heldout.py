@@ -61,6 +61,7 @@ class HeldoutConfig:
         consensus: the consensus every row goes through (one of
             :data:`popbench.reconcile.CONSENSUS_MODES`).
         checkpoint: the actor of the ``prop-v1`` row (None: the committed default).
+        imitation_checkpoint: the actor of the ``imitation`` row (None: the committed one).
         out: output folder.
     """
 
@@ -71,6 +72,7 @@ class HeldoutConfig:
     rows: tuple[str, ...] = ROWS
     consensus: str = DEFAULT_CONSENSUS
     checkpoint: Path | None = None
+    imitation_checkpoint: Path | None = None
     out: Path = Path("results/heldout")
 
 
@@ -84,7 +86,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
     """One specification per (noise, robots, problem, row), with the code and, for the learned
     rows, the checkpoint's sha256 it is computed from. A learned row whose checkpoint does not
     exist is left out of the default rows and refused when asked for by name."""
-    checkpoints = _load(CHECKPOINTS_FUNCTION)(config.checkpoint)
+    checkpoints = _load(CHECKPOINTS_FUNCTION)(config.checkpoint, config.imitation_checkpoint)
     code = code_fingerprint()
     specs = []
     for noise in config.noise:
