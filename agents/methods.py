@@ -52,11 +52,11 @@ from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
 from popbench import objective
 from popbench.distributed import DistributedProblem
-from popbench.methods import Budget, Result
+from popbench.methods import Budget, Result, method_record
 from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
 
-CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-DEFAULT_CHECKPOINT = CHECKPOINT_DIR / "actor-V2-n7.pt"
+DEFAULT_CHECKPOINT = method_record("prop-v1").checkpoint_path()  # the record's checkpoint
+CHECKPOINT_DIR = DEFAULT_CHECKPOINT.parent
 PROP_V2_LM_ITERATIONS = 75
 
 

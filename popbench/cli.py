@@ -308,7 +308,9 @@ def solve_record(
     options = dict(options or {})
     if progress is not None:
         team = f", {problem.num_robots} robots" if problem.num_robots > 1 else ""
-        episode = method.startswith("prop-")  # one episode; --iterations does not apply
+        from popbench.methods import method_record
+
+        episode = method_record(method).episodic  # one episode; --iterations does not apply
         rounds = "one episode" if episode else f"at most {budget.iterations} rounds"
         progress.stage(
             f"solving {problem.graph.name} with {method}{team}, {rounds}…",

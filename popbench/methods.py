@@ -1,17 +1,23 @@
-"""The one method interface and its registry.
+"""The one method interface and its registry of method records.
 
 Every method is a function ``solve(problem, budget, **options) -> Result`` over a
-:class:`~popbench.distributed.DistributedProblem`. The registry maps names to
-``"module:function"`` strings and imports lazily, so the core never imports ``baselines``,
-``agents`` or ``envs`` (and ``popbench --help`` stays fast).
+:class:`~popbench.distributed.DistributedProblem`, starting from the problem's start
+(``problem.graph.poses``, see :mod:`popbench.initial`). Each registered method is one
+:class:`MethodRecord`: its solve function as a ``"module:function"`` string, imported lazily (so
+the core never imports ``baselines``, ``agents`` or ``envs``, and ``popbench --help`` stays
+fast), and the facts the harness, the cache, the reports and the CLI read — its table label, the
+checkpoint its results depend on, its capabilities. Adding a method = one solve function + one
+record in :data:`METHODS` (+ tests); nothing else names methods.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.util
 import inspect
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -72,43 +78,137 @@ class Result:
 
 Method = Callable[..., Result]
 
-METHODS: dict[str, str] = {
-    "lm": "popbench.solvers.lm:solve",
-    "gnc": "popbench.solvers.gnc:solve",
-    "cc-pgo": "baselines.cc_pgo:solve",
-    "ml-pgo": "baselines.ml_pgo:solve",
-    "mm-pgo": "baselines.mm_pgo:solve",
-    "prop-v1": "agents.methods:solve_prop_v1",
-    "prop-v2": "agents.methods:solve_prop_v2",
+
+@dataclasses.dataclass(frozen=True)
+class MethodRecord:
+    """One registered method: where its solve function is and what the harness needs to know.
+
+    Attributes:
+        name: the registry key (``--method NAME``, the ``method`` column of every table).
+        solve: ``"module:function"`` of its ``solve(problem, budget, **options) -> Result``,
+            imported on first use (:func:`get_method`).
+        label: its name in table headers and figure legends (``"MM-PGO"``).
+        checkpoint: a file its results depend on besides the code (the learned methods' actor
+            weights), ``"package:relative/path"`` (found without importing the package) or a
+            path; its sha256 keys the cached cells (:mod:`popbench.harness.cache`). None: none.
+        has_inlier_mask: its ``Result.inlier_mask`` flags outliers (Table II's methods).
+        learned: it runs a trained policy (``checkpoint`` holds it).
+        centralised: it solves the whole graph in one process, whatever the robots (a
+            reference, not one of Table I's distributed methods).
+        episodic: it runs one episode of fixed length; ``Budget.iterations`` does not bound it.
+        refines: the registered method whose output it refines (its ``**options`` are passed
+            on to that method's solve), or None.
+    """
+
+    name: str
+    solve: str
+    label: str
+    checkpoint: str | None = None
+    has_inlier_mask: bool = False
+    learned: bool = False
+    centralised: bool = False
+    episodic: bool = False
+    refines: str | None = None
+
+    def checkpoint_path(self) -> Path | None:
+        """:attr:`checkpoint` as a path (a ``"package:relative/path"`` resolved against the
+        package's folder without importing it), or None (no checkpoint, or no such package)."""
+        if self.checkpoint is None:
+            return None
+        package, separator, relative = self.checkpoint.partition(":")
+        if not separator:
+            return Path(self.checkpoint).expanduser()
+        try:
+            found = importlib.util.find_spec(package)
+        except (ImportError, ValueError):
+            return None
+        if found is None or not found.submodule_search_locations:
+            return None
+        return Path(next(iter(found.submodule_search_locations))) / relative
+
+
+ACTOR_CHECKPOINT = "agents:checkpoints/actor-V2-n7.pt"  # the n = 7 V2 actor (any n)
+
+METHODS: dict[str, MethodRecord] = {
+    record.name: record
+    for record in (
+        MethodRecord("lm", "popbench.solvers.lm:solve", "LM", centralised=True),
+        MethodRecord(
+            "gnc", "popbench.solvers.gnc:solve", "GNC", has_inlier_mask=True, centralised=True
+        ),
+        MethodRecord("cc-pgo", "baselines.cc_pgo:solve", "CC-PGO"),
+        MethodRecord("ml-pgo", "baselines.ml_pgo:solve", "ML-PGO"),
+        MethodRecord("mm-pgo", "baselines.mm_pgo:solve", "MM-PGO", has_inlier_mask=True),
+        MethodRecord(
+            "prop-v1",
+            "agents.methods:solve_prop_v1",
+            "Prop-V1",
+            checkpoint=ACTOR_CHECKPOINT,
+            has_inlier_mask=True,
+            learned=True,
+            episodic=True,
+        ),
+        MethodRecord(
+            "prop-v2",
+            "agents.methods:solve_prop_v2",
+            "Prop-V2",
+            checkpoint=ACTOR_CHECKPOINT,
+            has_inlier_mask=True,
+            learned=True,
+            episodic=True,
+            refines="prop-v1",
+        ),
+        MethodRecord("local-lm", "popbench.solvers.local_lm:solve", "local-lm"),
+    )
 }
 
 
-# Methods whose ``**options`` are passed on to another registered method's solve.
-FORWARDS: dict[str, str] = {"prop-v2": "prop-v1"}
+def method_record(name: str) -> MethodRecord:
+    """The record registered under ``name`` (ValueRangeError listing the names otherwise)."""
+    if name not in METHODS:
+        raise ValueRangeError("method", name, ", ".join(METHODS))
+    return METHODS[name]
+
+
+def label(name: str) -> str:
+    """The table label of ``name``: its record's, or the name itself if it is not registered
+    (a row from an older run)."""
+    return METHODS[name].label if name in METHODS else name
+
+
+def distributed_methods() -> tuple[str, ...]:
+    """The registered methods that are not centralised, in registry order (Table I's)."""
+    return tuple(name for name, record in METHODS.items() if not record.centralised)
 
 
 def method_options(name: str) -> tuple[str, ...]:
     """The keyword options the method registered under ``name`` accepts: its solve function's
-    named parameters after ``problem`` and ``budget`` (and those of the method it forwards
-    ``**options`` to, see :data:`FORWARDS`). A trailing ``**_`` swallows anything else, so
-    callers that take options from users should check them against this list."""
+    named parameters after ``problem`` and ``budget`` (and those of the method it refines,
+    :attr:`MethodRecord.refines`, which gets its ``**options``). A trailing ``**_`` swallows
+    anything else, so callers that take options from users should check them against this
+    list."""
     names = [
         parameter.name
         for parameter in list(inspect.signature(get_method(name)).parameters.values())[2:]
         if parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
     ]
-    if name in FORWARDS:
-        names += [option for option in method_options(FORWARDS[name]) if option not in names]
+    refined = method_record(name).refines
+    if refined is not None:
+        names += [option for option in method_options(refined) if option not in names]
     return tuple(names)
+
+
+def load_object(path: str) -> Any:
+    """The object named by ``"module:attribute"``, importing the module on first use
+    (``ModuleNotFoundError`` if it is not installed)."""
+    module_name, _, attribute = path.partition(":")
+    return getattr(importlib.import_module(module_name), attribute)
 
 
 def get_method(name: str) -> Method:
     """The ``solve`` function registered under ``name``."""
-    if name not in METHODS:
-        raise ValueRangeError("method", name, ", ".join(METHODS))
-    module_name, function_name = METHODS[name].split(":")
+    record = method_record(name)
     try:
-        module = importlib.import_module(module_name)
+        return load_object(record.solve)
     except ModuleNotFoundError as error:
         raise ValueRangeError("method", name, f"an implemented method ({error})") from None
-    return getattr(module, function_name)

@@ -265,7 +265,8 @@ def test_solve_record_reports_stages_and_rounds(
 ) -> None:
     from popbench import methods
 
-    monkeypatch.setitem(methods.METHODS, "counting", "test_cli:_counting_solve")
+    record = methods.MethodRecord("counting", "test_cli:_counting_solve", "Counting")
+    monkeypatch.setitem(methods.METHODS, "counting", record)
     path = tmp_path / "tri.g2o"
     path.write_text(
         "EDGE_SE2 0 1 1 0 1.5 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 1.5 1 0 0 1 0 1\n"

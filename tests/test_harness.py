@@ -220,7 +220,7 @@ def test_learned_cells_are_keyed_by_the_actor_checkpoint(tmp_path, monkeypatch, 
 
     checkpoint = tmp_path / "actor.pt"
     checkpoint.write_bytes(b"weights one")
-    monkeypatch.setattr(cache, "checkpoint_path", lambda: checkpoint)
+    monkeypatch.setattr(cache, "checkpoint_path", lambda method: checkpoint)
     before = cell_key(_specs("table1", "mit", method)[0])
     checkpoint.write_bytes(b"weights two, retrained")
     assert cell_key(_specs("table1", "mit", method)[0]) != before
@@ -232,7 +232,8 @@ def test_checkpoint_path_is_the_one_the_learned_methods_load():
     from agents.methods import DEFAULT_CHECKPOINT
     from popbench.harness.cache import checkpoint_path
 
-    assert checkpoint_path() == DEFAULT_CHECKPOINT
+    assert checkpoint_path("prop-v1") == checkpoint_path("prop-v2") == DEFAULT_CHECKPOINT
+    assert DEFAULT_CHECKPOINT.is_file() and checkpoint_path("mm-pgo") is None
 
 
 def test_fresh_recomputes_cached_cells(tmp_path):

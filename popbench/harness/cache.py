@@ -22,9 +22,6 @@ from typing import Any
 
 # The packages whose code computes a cell: the core, the baselines, the agents and their envs.
 CODE_PACKAGES = ("popbench", "baselines", "agents", "envs")
-# The methods that read the actor checkpoint (agents.methods.DEFAULT_CHECKPOINT).
-LEARNED_METHODS = ("prop-v1", "prop-v2")
-CHECKPOINT = ("checkpoints", "actor-V2-n7.pt")  # relative to the agents package
 
 
 def cell_key(spec: Mapping[str, Any]) -> str:
@@ -81,25 +78,30 @@ def dataset_sha256(dataset: str) -> str:
     return datasets.file_sha256(Path(dataset).expanduser())
 
 
-def checkpoint_path() -> Path | None:
-    """The actor checkpoint that prop-v1/prop-v2 load (agents.methods.DEFAULT_CHECKPOINT)."""
-    folder = _package_dir("agents")
-    return None if folder is None else folder.joinpath(*CHECKPOINT)
+def checkpoint_path(method: str) -> Path | None:
+    """The checkpoint file the registered ``method`` depends on (its record's
+    :attr:`~popbench.methods.MethodRecord.checkpoint`), or None."""
+    from popbench.methods import method_record
+
+    return method_record(method).checkpoint_path()
 
 
-def checkpoint_sha256() -> str | None:
+def checkpoint_sha256(method: str) -> str | None:
     """sha256 of :func:`checkpoint_path`, or None when there is no such file."""
     from popbench.datasets import file_sha256
 
-    path = checkpoint_path()
+    path = checkpoint_path(method)
     return file_sha256(path) if path is not None and path.is_file() else None
 
 
 def provenance(dataset: str, method: str | None = None) -> dict[str, Any]:
-    """What a cell on ``dataset`` with ``method`` was computed from, for its specification."""
+    """What a cell on ``dataset`` with ``method`` was computed from, for its specification
+    (with the checkpoint's sha256 for a method whose record names one)."""
+    from popbench.methods import METHODS
+
     inputs: dict[str, Any] = {"code": code_fingerprint(), "dataset_sha256": dataset_sha256(dataset)}
-    if method in LEARNED_METHODS:
-        inputs["checkpoint_sha256"] = checkpoint_sha256()
+    if method in METHODS and METHODS[method].checkpoint is not None:
+        inputs["checkpoint_sha256"] = checkpoint_sha256(method)
     return inputs
 
 

@@ -127,7 +127,12 @@ def table1_command(
     robots: str = typer.Option(
         None, help="Team sizes (default: 3,7,35; --quick: 3).", show_default=False
     ),
-    methods: str = typer.Option("cc-pgo,ml-pgo,mm-pgo,prop-v1,prop-v2", help="Methods."),
+    methods: str = typer.Option(
+        None,
+        help="Methods (default: every registered method that is not centralised: "
+        "cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2).",
+        show_default=False,
+    ),
     iterations: int = typer.Option(
         None,
         min=1,
@@ -165,11 +170,12 @@ def table1_command(
     from popbench.harness.table1 import Table1Config, run_table1
 
     options: dict = {
-        "methods": _methods(methods),
         "seeds": _integers(seeds, "seed", 0),
         "init": _init(init),
         "partition": _names(partition, ("metis", "contiguous"), "partition")[0],
     }
+    if methods is not None:
+        options["methods"] = _methods(methods)
     if datasets is not None:
         options["datasets"] = _names(datasets, None, "dataset")
     if robots is not None:

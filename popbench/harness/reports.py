@@ -13,16 +13,9 @@ import pandas as pd
 
 from popbench.harness.paper import paper_table1_cell
 from popbench.harness.plotting import pyplot, save_figure
+from popbench.methods import METHODS
+from popbench.methods import label as method_label
 
-_LABELS = {
-    "cc-pgo": "CC-PGO",
-    "ml-pgo": "ML-PGO",
-    "mm-pgo": "MM-PGO",
-    "prop-v1": "Prop-V1",
-    "prop-v2": "Prop-V2",
-    "lm": "LM",
-    "gnc": "GNC",
-}
 # (row label, our column, paper index in (F, time), lower is better)
 _TABLE1_METRICS = (
     ("F", "F", 0),
@@ -49,9 +42,9 @@ def _table1_grid(frame: pd.DataFrame, bold: tuple[str, str]) -> list[list[str]]:
     means = frame.groupby(["dataset", "robots", "method"], sort=False).mean(numeric_only=True)
     datasets = _ordered(frame["dataset"], ())
     robots = sorted(frame["robots"].unique())
-    methods = _ordered(frame["method"], list(_LABELS))
+    methods = _ordered(frame["method"], list(METHODS))
     header = ["Dataset (poses, edges)", "Metric"] + [
-        f"n={n} {_LABELS.get(m, m)}" for n in robots for m in methods
+        f"n={n} {method_label(m)}" for n in robots for m in methods
     ]
     grid = [header]
     for dataset in datasets:
@@ -131,7 +124,7 @@ def table1_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
     means = frame.groupby(["dataset", "robots", "method"], sort=False).mean(numeric_only=True)
     datasets = _ordered(frame["dataset"], ())
     robots = sorted(frame["robots"].unique())
-    methods = _ordered(frame["method"], list(_LABELS))
+    methods = _ordered(frame["method"], list(METHODS))
     fig, axes = plt.subplots(2, len(datasets), figsize=(3.2 * len(datasets), 5.5), squeeze=False)
     width = 0.8 / max(len(methods), 1)
     for col, dataset in enumerate(datasets):
@@ -144,7 +137,7 @@ def table1_figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
                     positions,
                     [max(h, GAP_FLOOR) for h in heights],
                     width,
-                    label=_LABELS.get(method, method),
+                    label=method_label(method),
                 )
             ax.set_yscale("log")
             ax.set_xticks(range(len(robots)), [f"n={n}" for n in robots])
@@ -169,10 +162,10 @@ def _mean_spread(values: pd.Series) -> str:
 def _outliers_grid(frame: pd.DataFrame) -> list[list[str]]:
     """Rows of cells: per (dataset, rate), F / precision / recall per method, ``mean ± std
     (paper)`` over seeds."""
-    methods = _ordered(frame["method"], list(_LABELS))
+    methods = _ordered(frame["method"], list(METHODS))
     metrics = (("F", "paper_F"), ("precision", "paper_precision"), ("recall", "paper_recall"))
     header = ["Dataset", "%"] + [
-        f"{metric} {_LABELS.get(m, m)}" for metric, _ in metrics for m in methods
+        f"{metric} {method_label(m)}" for metric, _ in metrics for m in methods
     ]
     grid = [header]
     for (dataset, rate), group in frame.groupby(["dataset", "rate"], sort=False):

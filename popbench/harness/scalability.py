@@ -20,7 +20,7 @@ from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.runner import Spec, execution_summary, run_cells
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
-METHODS = ("mm-pgo", "prop-v1", "prop-v2")
+METHODS = ("mm-pgo", "prop-v1", "prop-v2")  # the paper's Fig. 5
 
 
 @dataclasses.dataclass(frozen=True)
