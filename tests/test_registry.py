@@ -62,3 +62,20 @@ def test_a_registered_toy_method_solves_from_the_command_line(toy, tmp_path, cap
     graph = ring_g2o(tmp_path / "ring.g2o", n=12)
     assert main(["solve", str(graph), "--method", "toy", "-o", "step=1.0", "--json"]) == 0
     assert '"method": "toy"' in capsys.readouterr().out
+
+
+def test_the_registered_records_say_what_table_i_and_table_ii_read() -> None:
+    # Table I's defaults: the registered methods that are not centralised, local-lm included
+    assert Table1Config().methods == (
+        "cc-pgo",
+        "ml-pgo",
+        "mm-pgo",
+        "prop-v1",
+        "prop-v2",
+        "local-lm",
+    )
+    gnc, local = methods.method_record("gnc"), methods.method_record("local-lm")
+    assert gnc.centralised and gnc.has_inlier_mask and gnc.label == "GNC"
+    assert not local.centralised and not local.learned and local.label == "local-lm"
+    assert methods.get_method("local-lm").__module__ == "popbench.solvers.local_lm"
+    assert "consensus" in methods.method_options("local-lm")

@@ -130,7 +130,7 @@ def table1_command(
     methods: str = typer.Option(
         None,
         help="Methods (default: every registered method that is not centralised: "
-        "cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2).",
+        "cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2, local-lm).",
         show_default=False,
     ),
     iterations: int = typer.Option(

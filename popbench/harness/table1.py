@@ -39,7 +39,7 @@ class Table1Config:
 
     datasets: tuple[str, ...] = DATASETS
     robots: tuple[int, ...] = ROBOTS
-    # default: every registered method that is not centralised (the paper's five)
+    # default: every registered method that is not centralised (the paper's five, local-lm)
     methods: tuple[str, ...] = dataclasses.field(default_factory=distributed_methods)
     iterations: int = 1000
     seeds: tuple[int, ...] = (0,)
