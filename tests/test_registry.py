@@ -43,7 +43,8 @@ def test_a_registered_toy_method_gets_its_row_in_a_quick_table(toy, tmp_path, ca
     assert methods.method_options("toy") == ("seed", "step")
     graph = ring_g2o(tmp_path / "ring.g2o", n=12)
     out = tmp_path / "table"
-    args = ["run", "table1", "--quick", "--datasets", str(graph), "--robots", "2"]
+    # --jobs 1: in this process (spawned workers would not see a record added at run time)
+    args = ["run", "table1", "--quick", "--datasets", str(graph), "--robots", "2", "--jobs", "1"]
     assert main([*args, "--methods", "toy,mm-pgo", "--iterations", "5", "--out", str(out)]) == 0
     frame = pd.read_csv(out / "table1.csv")
     assert list(frame["method"]) == ["toy", "mm-pgo"]
