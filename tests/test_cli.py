@@ -15,6 +15,7 @@ import pytest
 from conftest import data_missing, require_dataset
 
 from popbench import cli, datasets
+from popbench.cli import solve as solve_cli
 
 REQUIRED_KEYS = {
     "dataset", "method", "robots", "poses", "edges", "F_init", "F", "F_chordal", "chi2",
@@ -66,7 +67,7 @@ def test_wrong_checksum_is_one_line(tmp_path: Path) -> None:
 
 
 def test_help_is_fast_to_import_and_teaches() -> None:
-    heavy = "{'torch', 'scipy', 'matplotlib', 'numpy'}"
+    heavy = "{'torch', 'scipy', 'matplotlib', 'numpy', 'agents'}"  # agents: loaded by name
     probe = f"import sys, popbench.cli; print(sorted({heavy} & set(sys.modules)))"
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert run.stdout.strip() == "[]"
@@ -132,7 +133,7 @@ def test_unexpected_exception_is_one_line(
     def explode(*args, **kwargs):
         raise ZeroDivisionError("boom")
 
-    monkeypatch.setattr(cli, "solve_record", explode)
+    monkeypatch.setattr(solve_cli, "solve_record", explode)
     monkeypatch.delenv("POPBENCH_DEBUG", raising=False)
     assert cli.main(["solve", "intel"]) == 1
     err = capsys.readouterr().err
@@ -143,7 +144,7 @@ def test_unexpected_exception_is_one_line(
 
 
 def test_method_options_are_parsed_as_json_or_strings() -> None:
-    parsed = cli.parse_method_options(["kernel=huber", "scale=0.5", "steps=3", "robust=true"])
+    parsed = solve_cli.parse_method_options(["kernel=huber", "scale=0.5", "steps=3", "robust=true"])
     assert parsed == {"kernel": "huber", "scale": 0.5, "steps": 3, "robust": True}
 
 
@@ -226,7 +227,7 @@ def test_method_options_follow_forwarding() -> None:
     assert {"lm_iterations", "consensus_iterations", "checkpoint"} <= set(method_options("prop-v2"))
     assert "consensus_iterations" in method_options("prop-v1")
     assert "lm_iterations" not in method_options("prop-v1")
-    cli.check_method_options("prop-v2", {"consensus_iterations": 3, "lm_iterations": 5})
+    solve_cli.check_method_options("prop-v2", {"consensus_iterations": 3, "lm_iterations": 5})
 
 
 def test_solve_help_explains_rounds_and_robots() -> None:
@@ -273,14 +274,15 @@ def test_solve_record_reports_stages_and_rounds(
         "EDGE_SE2 2 0 1 0 1.6 1 0 0 1 0 1\n"
     )
     recorder = _Recorder()
-    record = cli.solve_record(str(path), method="counting", iterations=4, progress=recorder)
+    record = solve_cli.solve_record(str(path), method="counting", iterations=4, progress=recorder)
     assert recorder.rounds == [1, 2, 3, 4]
     texts = [text for text, _ in recorder.stages]
     assert texts[0].startswith(f"loading {path}")
     assert ("solving tri with counting, at most 4 rounds…", 4) in recorder.stages
     assert record["iterations"] <= 4
     # Without a progress object the Budget carries no callback and round_done is a no-op.
-    assert cli.solve_record(str(path), method="counting", iterations=2)["method"] == "counting"
+    again = solve_cli.solve_record(str(path), method="counting", iterations=2)
+    assert again["method"] == "counting"
     assert methods.Budget(iterations=3) == methods.Budget(iterations=3, on_round=print)
 
 

@@ -220,6 +220,7 @@ def test_quick_writes_its_own_folder_and_keeps_the_options_given(capsys, capture
         (("run", "table1"), ("popbench run table1 --quick", "--fresh", "OUT/cells")),
         (("run", "outliers"), ("popbench run outliers --rate", "--fresh", "OUT/cells")),
         (("run", "scalability"), ("popbench run scalability", "--fresh", "OUT/cells")),
+        (("run", "heldout"), ("popbench run heldout --rows no-op,prop-v1", "--json", "--jobs")),
         (
             ("plot", "trajectories"),
             ("popbench plot trajectories intel", "results/figures/trajectories_DATASET"),
@@ -250,3 +251,32 @@ def test_trajectories_default_stem_is_the_one_the_help_names(tmp_path, capsys, m
     code, _, err = _run(capsys, "plot", "trajectories", tmp_path / "u.g2o", "--methods", "lm")
     assert code == 0, err
     assert stems == [Path("results/figures/trajectories_u")]
+
+
+def test_heldout_json_is_the_last_line_with_its_rows(tmp_path, capsys):
+    rows = ("initial", "no-op", "local-lm")
+    args = ("run", "heldout", "--robots", "3", "--problems", "2", "--rows", ",".join(rows))
+    small = ("--poses-per-robot", "12", "--jobs", "1", "--out", tmp_path)
+    code, out, err = _run(capsys, *args, *small, "--json")
+    assert code == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])  # one JSON object, the last line
+    assert [row["row"] for row in summary["rows"]] == list(rows)
+    for row in summary["rows"]:
+        assert (row["noise"], row["robots"], row["problems"]) == ("V2", 3, 2)
+        assert row["F_median"] > 0 and len(row["F_median_ci"]) == 2
+    local = summary["rows"][-1]
+    assert local["closed_F"] == pytest.approx(1.0)  # local-lm closes its own gap
+    assert (tmp_path / "summary.csv").is_file() and (tmp_path / "manifest.json").is_file()
+
+
+def test_heldout_bad_values_are_one_line(tmp_path, capsys):
+    for option, value, phrase in (
+        ("--noise", "V4", "invalid --noise 'V4'"),
+        ("--rows", "oracle", "invalid --rows 'oracle'"),
+        ("--consensus", "gossip", "invalid --consensus 'gossip'"),
+        ("--checkpoint", str(tmp_path / "none.pt"), "invalid --checkpoint"),
+    ):
+        code, _, err = _run(capsys, "run", "heldout", option, value, "--out", tmp_path / "o")
+        assert code == 2, (option, err)
+        _one_error_line(err, phrase)
+    assert not (tmp_path / "o").exists()

@@ -21,7 +21,8 @@ from agents.methods import (
     solve_prop_v2,
 )
 from popbench import objective
-from popbench.cli import main, train_config
+from popbench.cli import main
+from popbench.cli.train import train_config
 from popbench.errors import ValueRangeError
 from popbench.initial import with_start
 from popbench.io import write_g2o

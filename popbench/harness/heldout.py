@@ -13,7 +13,6 @@ Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import time
 from pathlib import Path
@@ -26,6 +25,7 @@ from popbench.harness.cache import CellCache, code_fingerprint
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.runner import Spec, execution_summary, run_cells
+from popbench.methods import load_object
 from popbench.metrics import bootstrap_ci
 from popbench.reconcile import DEFAULT_CONSENSUS
 
@@ -76,17 +76,11 @@ class HeldoutConfig:
     out: Path = Path("results/heldout")
 
 
-def _load(target: str) -> Any:
-    """The object a ``"module:name"`` string names, imported on first use."""
-    module, name = target.split(":")
-    return getattr(importlib.import_module(module), name)
-
-
 def cell_specs(config: HeldoutConfig) -> list[Spec]:
     """One specification per (noise, robots, problem, row), with the code and, for the learned
     rows, the checkpoint's sha256 it is computed from. A learned row whose checkpoint does not
     exist is left out of the default rows and refused when asked for by name."""
-    checkpoints = _load(CHECKPOINTS_FUNCTION)(config.checkpoint, config.imitation_checkpoint)
+    checkpoints = load_object(CHECKPOINTS_FUNCTION)(config.checkpoint, config.imitation_checkpoint)
     code = code_fingerprint()
     specs = []
     for noise in config.noise:
@@ -114,7 +108,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
 def compute_cell(spec: Spec) -> dict[str, Any]:
     """One row of one held-out problem (``agents.heldout.evaluate_row``) and its wall time."""
     started = time.perf_counter()
-    measured = _load(ROW_FUNCTION)(spec)
+    measured = load_object(ROW_FUNCTION)(spec)
     return {
         "noise": spec["noise"],
         "robots": spec["robots"],

@@ -1,0 +1,299 @@
+"""``popbench run table1 | outliers | scalability | heldout``: the paper's experiments.
+
+Lists are comma-separated (``--datasets intel,mit --robots 3,7``). Finished cells are cached
+under ``OUT/cells``, keyed by the cell's options and by what it was computed from (the sha256
+of the graph file, a fingerprint of the code, the checkpoint's sha256 for a method whose record
+names one): re-running a command recomputes nothing that finished with the same inputs, so an
+interrupted run resumes where it stopped; ``--fresh`` recomputes every cell. ``--jobs``,
+``--executor``, ``--address`` and ``--threads`` say where the cells run
+(:mod:`popbench.harness.executors`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from popbench.cli import options
+from popbench.errors import ValueRangeError
+
+app = typer.Typer(
+    help="Run the paper's experiments; write CSV, markdown, LaTeX and figures.",
+    no_args_is_help=True,
+)
+
+
+@app.command(
+    "table1",
+    epilog=options.epilog(
+        "popbench run table1 --quick                      # mit, n = 3, 100 rounds",
+        "popbench run table1 --jobs 1                     # one cell at a time",
+        "popbench run table1 --executor ray --address HEAD:6379",
+        "popbench run table1 --datasets intel,my.g2o --robots 3,7 --methods mm-pgo "
+        "--out results/mine",
+    ),
+)
+def table1_command(
+    datasets: str = typer.Option(
+        None,
+        help="Datasets, registered names or .g2o paths (default: the paper's eight; --quick: mit).",
+        show_default=False,
+    ),
+    robots: str = typer.Option(
+        None, help="Team sizes (default: 3,7,35; --quick: 3).", show_default=False
+    ),
+    methods: str = typer.Option(
+        None,
+        help="Methods (default: every registered method that is not centralised: "
+        "cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2, local-lm).",
+        show_default=False,
+    ),
+    iterations: int = typer.Option(
+        None,
+        min=1,
+        help="Rounds for the iterative methods (default: 1000; --quick: 100).",
+        show_default=False,
+    ),
+    seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
+    init: str = typer.Option(
+        "odometry", help="Initial estimate for every method: odometry | chordal | given."
+    ),
+    partition: str = typer.Option("metis", help="metis | contiguous."),
+    out: Path = typer.Option(
+        None,
+        help="Output folder (default: results/table1; --quick: results/table1-quick).",
+        show_default=False,
+    ),
+    quick: bool = typer.Option(
+        False,
+        "--quick",
+        help="A small subset (mit, n = 3, 100 iterations) that finishes in about a minute; "
+        "--datasets, --robots, --iterations and the other options given replace its defaults.",
+    ),
+    fresh: options.Fresh = False,
+    jobs: options.Jobs = None,
+    executor: options.Executor = "process",
+    address: options.Address = None,
+    threads: options.Threads = 1,
+) -> None:
+    """The paper's Table I: datasets × robots × methods, with F* and the gap F/F* − 1.
+
+    Writes OUT/table1.csv (one row per cell), table1.md, table1.tex (ours beside the paper's
+    numbers) and table1.png/.pdf. Every dataset is loaded and every team size checked before
+    anything is computed.
+    """
+    from popbench.harness.table1 import Table1Config, run_table1
+
+    settings: dict = {
+        "seeds": options.integers(seeds, "seed", 0),
+        "init": options.start(init),
+        "partition": options.names(partition, options.PARTITIONS, "partition")[0],
+    }
+    if methods is not None:
+        settings["methods"] = options.methods(methods)
+    if datasets is not None:
+        settings["datasets"] = options.names(datasets, None, "dataset")
+    if robots is not None:
+        settings["robots"] = options.integers(robots, "robots")
+    if iterations is not None:
+        settings["iterations"] = iterations
+    if out is not None:
+        settings["out"] = out
+    config = Table1Config.quick(**settings) if quick else Table1Config(**settings)
+    frame = run_table1(
+        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
+    )
+    typer.echo(
+        f"{len(frame)} cells -> {config.out}/table1.csv, table1.md, table1.tex, "
+        "table1.png, table1.pdf"
+    )
+
+
+@app.command(
+    "outliers",
+    epilog=options.epilog(
+        "popbench run outliers --rate 0.025,0.05,0.1       # the paper's Table II",
+        "popbench run outliers --datasets intel --seeds 0 --iterations 100 --out results/o",
+    ),
+)
+def outliers_command(
+    rate: str = typer.Option("0.1", help="Outlier rates (fractions), e.g. 0.025,0.05,0.1."),
+    datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
+    methods: str = typer.Option("prop-v1,mm-pgo,gnc", help="Methods (need an inlier mask)."),
+    robots: int = typer.Option(7, min=1, help="Team size."),
+    seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
+    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    kernel: str = typer.Option("gm", help="mm-pgo robust kernel: huber | gm | welsch."),
+    init: str = typer.Option(
+        "odometry", help="odometry | chordal (made from the corrupted data) | given (the file's)."
+    ),
+    candidates: str = typer.Option(
+        "loops",
+        help="Edges that may be corrupted: loops (loop closures; odometry, incl. cut odometry, "
+        "never) | paper (loop closures + every inter-robot edge: breaks the odometry start).",
+    ),
+    out: Path = typer.Option(Path("results/outliers"), help="Output folder."),
+    fresh: options.Fresh = False,
+    jobs: options.Jobs = None,
+    executor: options.Executor = "process",
+    address: options.Address = None,
+    threads: options.Threads = 1,
+) -> None:
+    """The paper's Table II: F, outlier precision and recall with corrupted loop closures.
+
+    Writes OUT/outliers.csv, outliers.md and outliers.tex. Every dataset is loaded and the team
+    size checked before anything is computed.
+    """
+    from popbench.harness.outliers import OutliersConfig, run_outliers
+    from popbench.outliers import CANDIDATE_SETS
+
+    config = OutliersConfig(
+        datasets=options.names(datasets, None, "dataset"),
+        rates=options.rates(rate),
+        methods=options.methods(methods),
+        robots=robots,
+        seeds=options.integers(seeds, "seed", 0),
+        iterations=iterations,
+        init=options.start(init),
+        kernel=options.names(kernel, options.ROBUST_KERNELS, "kernel")[0],
+        candidates=options.names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
+        out=out,
+    )
+    frame = run_outliers(
+        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
+    )
+    typer.echo(f"{len(frame)} cells -> {config.out}/outliers.csv, outliers.md, outliers.tex")
+
+
+@app.command(
+    "scalability",
+    epilog=options.epilog(
+        "popbench run scalability                            # m3500, n = 1 … 70",
+        "popbench run scalability --dataset intel --robots 1,3,7 --methods mm-pgo --out results/s",
+    ),
+)
+def scalability_command(
+    dataset: str = typer.Option("m3500", help="Dataset."),
+    robots: str = typer.Option("1,2,3,5,7,10,14,20,28,35,50,70", help="Team sizes."),
+    methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods."),
+    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
+    out: Path = typer.Option(Path("results/scalability"), help="Output folder."),
+    fresh: options.Fresh = False,
+    jobs: options.Jobs = None,
+    executor: options.Executor = "process",
+    address: options.Address = None,
+    threads: options.Threads = 1,
+) -> None:
+    """The paper's Fig. 5: F and time against team size, actors replicated.
+
+    Writes OUT/scalability.csv and scalability.png/.pdf. The dataset is loaded and every team
+    size checked before anything is computed.
+    """
+    from popbench.harness.scalability import ScalabilityConfig, run_scalability
+
+    config = ScalabilityConfig(
+        dataset=dataset,
+        robots=options.integers(robots, "robots"),
+        methods=options.methods(methods),
+        iterations=iterations,
+        init=options.start(init),
+        out=out,
+    )
+    frame = run_scalability(
+        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
+    )
+    typer.echo(f"{len(frame)} cells -> {config.out}/scalability.csv, scalability.png/.pdf")
+
+
+HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
+
+
+@app.command(
+    "heldout",
+    epilog=options.epilog(
+        "popbench run heldout                               # V2, n = 7, 100 problems, every row",
+        "popbench run heldout --rows no-op,prop-v1,local-lm --checkpoint runs/a/actor.pt",
+        "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus aligned-admm",
+        "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
+    ),
+)
+def heldout_command(
+    noise: str = typer.Option("V2", help="Synthetic noise levels: V1, V2, V3 (comma list)."),
+    robots: str = typer.Option("7", help="Team sizes (comma list)."),
+    problems: int = typer.Option(
+        100, min=1, help="Held-out problems per (noise, team size); seeds 2^32 + k."
+    ),
+    poses_per_robot: int = typer.Option(
+        60, min=2, help="Poses of each robot's synthetic trajectory."
+    ),
+    rows: str = typer.Option(
+        None,
+        help="Rows (comma list, computed in the table's order; default: every row, a learned "
+        "row left out when its checkpoint is missing): initial, no-op, random, greedy, "
+        "gn-sweep, expert, imitation, prop-v1, local-lm, ground-truth.",
+        show_default=False,
+    ),
+    checkpoint: Path = typer.Option(
+        None,
+        help="The prop-v1 row's actor (default: the committed actor-V2-n7.pt).",
+        show_default=False,
+    ),
+    imitation_checkpoint: Path = typer.Option(
+        None,
+        help="The imitation row's actor (default: the committed imitation-V2-n7.pt).",
+        show_default=False,
+    ),
+    consensus: str = typer.Option(
+        "admm", help="The consensus every row goes through: admm | aligned-admm."
+    ),
+    out: Path = typer.Option(Path("results/heldout"), help="Output folder."),
+    fresh: options.Fresh = False,
+    jobs: options.Jobs = None,
+    executor: options.Executor = "process",
+    address: options.Address = None,
+    threads: options.Threads = 1,
+    json_output: bool = typer.Option(
+        False, "--json", help="Print the summary as one JSON object, the last line on stdout."
+    ),
+) -> None:
+    """The learned solver on held-out synthetic problems, row by row, through one consensus.
+
+    Every row is an estimate of the same problem brought through the same consensus, so the
+    rows differ only in what was done to the local graphs before it (nothing, a baseline
+    policy, the expert, the learned actors, the local optima, the ground truth). Writes
+    OUT/heldout.csv (one line per problem and row), summary.csv (mean and median F and ATE
+    with bootstrap 95 % CIs, the share of the no-op → local-lm gap each row closes),
+    heldout.md, heldout.png/.pdf and manifest.json.
+    """
+    from popbench.harness.heldout import ROWS, HeldoutConfig, run_heldout, summary_json
+    from popbench.reconcile import CONSENSUS_MODES
+
+    for path, what in (
+        (checkpoint, "--checkpoint"),
+        (imitation_checkpoint, "--imitation-checkpoint"),
+    ):
+        if path is not None and not path.is_file():
+            raise ValueRangeError(what, str(path), "an existing checkpoint file")
+    config = HeldoutConfig(
+        noise=options.names(noise, HELDOUT_NOISE, "--noise"),
+        robots=options.integers(robots, "--robots"),
+        problems=problems,
+        poses_per_robot=poses_per_robot,
+        rows=ROWS if rows is None else options.names(rows, ROWS, "--rows"),
+        consensus=options.names(consensus, CONSENSUS_MODES, "--consensus")[0],
+        checkpoint=checkpoint,
+        imitation_checkpoint=imitation_checkpoint,
+        out=out,
+    )
+    table = run_heldout(
+        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
+    )
+    if json_output:
+        typer.echo(summary_json(table))
+    else:
+        typer.echo(
+            f"{len(table)} rows -> {config.out}/heldout.csv, summary.csv, heldout.md, "
+            "heldout.png, heldout.pdf"
+        )

@@ -1,0 +1,314 @@
+"""``popbench solve``: one method on one pose graph, summarised (a table or one JSON object).
+
+:func:`solve_record` is the command without its parser (what ``--json`` prints), for scripts
+and tests.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from typing import Annotated, Any
+
+import typer
+
+from popbench.cli.options import PARTITIONS, CommandThreads
+from popbench.errors import PopbenchError, ValueRangeError
+
+
+def parse_method_options(pairs: list[str]) -> dict[str, Any]:
+    """``["kernel=huber", "scale=0.5"]`` → ``{"kernel": "huber", "scale": 0.5}``; values are read
+    as JSON when they parse (numbers, true/false, null), else kept as strings."""
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        key, separator, text = pair.partition("=")
+        if not separator or not key.isidentifier():
+            raise ValueRangeError("--option", pair, "KEY=VALUE with KEY a Python identifier")
+        try:
+            options[key] = json.loads(text)
+        except json.JSONDecodeError:
+            options[key] = text
+    return options
+
+
+def build_problem(source: str, robots: int, partition: str, seed: int, init: str = "odometry"):
+    """``source`` (a registered name or a file) split among ``robots`` robots, carrying the
+    ``init`` start (:func:`popbench.harness.problems.distributed_problem`, as the harness)."""
+    from popbench.harness.problems import distributed_problem
+
+    if partition not in PARTITIONS:
+        raise ValueRangeError("--partition", partition, " or ".join(PARTITIONS))
+    return distributed_problem(source, robots, init, partition, seed)
+
+
+SET_BY_CLI = {"init": "--init"}  # method options the command sets from its own flags
+
+
+def check_method_options(method: str, options: dict[str, Any]) -> None:
+    """Reject ``-o`` keys the method's solve does not name (every solve ends in ``**_``, so a
+    misspelt key would otherwise be ignored silently) and those the command sets itself."""
+    from popbench.methods import method_options
+
+    accepted = [name for name in method_options(method) if name not in SET_BY_CLI]
+    for key in options:
+        if key in SET_BY_CLI:
+            raise PopbenchError(
+                f"-o {key}=… is set by the command: use {SET_BY_CLI[key]} instead "
+                "(the record's init and F_init follow it)"
+            )
+        if key not in accepted:
+            raise PopbenchError(
+                f"unknown option -o {key}=… for method {method}; "
+                f"accepted: {', '.join(accepted) or 'none'}"
+            )
+
+
+def run_method(problem, method: str, budget, options: dict[str, Any]):
+    """Call the registered ``method`` on ``problem`` with ``budget`` and keyword ``options``."""
+    from popbench.methods import get_method
+
+    return get_method(method)(problem, budget, **options)
+
+
+class SolveProgress:
+    """A transient status line on stderr while ``popbench solve`` works: the stage, a bar of the
+    rounds done (for methods that report them through ``Budget.round_done``) and the elapsed
+    time. It is erased when the command ends."""
+
+    def __init__(self, text: str = "") -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            Progress,
+            SpinnerColumn,
+            TextColumn,
+            TimeElapsedColumn,
+        )
+
+        self._progress = Progress(
+            SpinnerColumn(),
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.fields[rounds]}"),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+            transient=True,
+            redirect_stdout=False,
+            redirect_stderr=False,
+        )
+        self._task = self._progress.add_task(text, total=None, rounds="")
+        self._total: int | None = None
+
+    def __enter__(self) -> SolveProgress:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._progress.stop()
+
+    def stage(self, text: str, rounds: int | None = None) -> None:
+        """Show ``text``; ``rounds`` (the budget) sizes the bar once rounds are reported."""
+        self._total = rounds
+        self._progress.update(self._task, description=text, total=None, completed=0, rounds="")
+
+    def on_round(self, done: int) -> None:
+        """``Budget.on_round``: ``done`` rounds have run."""
+        total = self._total
+        self._progress.update(
+            self._task,
+            total=total,
+            completed=done,
+            rounds=f"{done}/{total} rounds" if total else f"{done} rounds",
+        )
+
+
+def solve_record(
+    source: str,
+    method: str = "lm",
+    init: str = "odometry",
+    iterations: int | None = None,
+    seconds: float | None = None,
+    robots: int = 1,
+    partition: str = "metis",
+    seed: int = 0,
+    options: dict[str, Any] | None = None,
+    progress: SolveProgress | None = None,
+) -> dict[str, Any]:
+    """Solve one problem and summarise it as a JSON-ready dict (what ``popbench solve --json``
+    prints). ``options`` are checked by :func:`check_method_options`; ``progress`` (optional)
+    is shown each stage and told of each round.
+
+    The problem carries the ``init`` start (a name of :data:`popbench.initial.STARTS`) and the
+    method starts from it. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since
+    methods differ in what their ``history`` records.
+    """
+    from popbench import objective
+    from popbench.initial import check_start
+    from popbench.methods import Budget, method_record
+
+    check_start(init, "--init")
+    if iterations is not None and iterations < 0:
+        raise ValueRangeError("--iterations", iterations, "an integer ≥ 0")
+    if seconds is not None and not seconds > 0:
+        raise ValueRangeError("--seconds", seconds, "a number > 0")
+    check_method_options(method, options or {})
+    budget = Budget(
+        iterations=Budget.iterations if iterations is None else iterations,
+        seconds=seconds,
+        on_round=progress.on_round if progress is not None else None,
+    )
+    if progress is not None:
+        split = f" and splitting it among {robots} robots" if robots > 1 else ""
+        progress.stage(f"loading {source}{split}…")
+    problem = build_problem(source, robots, partition, seed, init)
+    options = dict(options or {})
+    if progress is not None:
+        team = f", {problem.num_robots} robots" if problem.num_robots > 1 else ""
+        episode = method_record(method).episodic  # one episode; --iterations does not apply
+        rounds = "one episode" if episode else f"at most {budget.iterations} rounds"
+        progress.stage(
+            f"solving {problem.graph.name} with {method}{team}, {rounds}…",
+            None if episode else budget.iterations,
+        )
+    result = run_method(problem, method, budget, options)
+    if progress is not None:
+        progress.stage(f"F at the {init} estimate…")
+    graph = problem.graph
+    record: dict[str, Any] = {
+        "dataset": graph.name,
+        "method": method,
+        "init": init,
+        "robots": problem.num_robots,
+        "partition": partition if problem.num_robots > 1 else None,
+        "poses": graph.num_poses,
+        "edges": graph.num_edges,
+        "F_init": objective.objective(graph, graph.poses),
+        "F": float(result.F),
+        "F_chordal": float(result.F_chordal),
+        "chi2": float(result.chi2),
+        "iterations": int(result.iterations),
+        "wall_s": float(result.wall_s),
+        "parallel_s": float(result.parallel_s),
+        "history_length": len(result.history),
+        "messages": int(result.messages),
+        "options": options,
+    }
+    record["extras"] = {
+        key: value.item() if hasattr(value, "item") else value
+        for key, value in result.extras.items()
+        if isinstance(value, int | float | bool | str) or getattr(value, "ndim", None) == 0
+    }
+    return record
+
+
+def _print_summary(record: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{record['method']} on {record['dataset']}", show_header=False)
+    table.add_column("quantity")
+    table.add_column("value", justify="right")
+    for key, value in record.items():
+        if value is None or value == {}:
+            continue
+        text = f"{value:.6g}" if isinstance(value, float) else str(value)
+        table.add_row(key, text)
+    Console().print(table)
+
+
+EPILOG = (
+    "Examples:\n\n"
+    "  popbench solve intel --method lm --init chordal\n\n"
+    "  popbench solve m3500 --robots 5 --partition metis --json\n\n"
+    "  popbench solve path/to/graph.g2o --iterations 50 -o key=value\n\n"
+    "Objectives: F is paper eq. 1 with κ=Λθθ and τ=2/tr(Λtt⁻¹); F_chordal the SE-Sync "
+    "chordal cost (no ½); chi2 g2o's EDGE_SE2 Σ eᵀΛe (no ½). See README.md."
+)
+
+
+def solve_command(
+    source: Annotated[
+        str,
+        typer.Argument(
+            metavar="DATASET|PATH",
+            help="A registered dataset (popbench datasets list) or a .g2o/.graph file.",
+        ),
+    ],
+    method: Annotated[
+        str,
+        typer.Option(
+            help="Registered method: lm, gnc, cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2, local-lm."
+        ),
+    ] = "lm",
+    init: Annotated[
+        str,
+        typer.Option(
+            help="Initial estimate: odometry (composition), chordal, or given (the file's poses)."
+        ),
+    ] = "odometry",
+    iterations: Annotated[
+        int | None,
+        typer.Option(
+            help="Rounds the method may run (≥ 0; default 1000). A round is one LM step "
+            "(accepted or rejected) for lm; one RBCD block round (one colour class of robots "
+            "updates) for cc-pgo and ml-pgo; one MM iteration (every robot one step) for "
+            "mm-pgo. prop-v1 and prop-v2 ignore it: they run one episode of one actor step "
+            "per local edge, then consensus (prop-v2 then 75 LM steps)."
+        ),
+    ] = None,
+    seconds: Annotated[
+        float | None, typer.Option(help="Wall-clock cap in seconds (optional).")
+    ] = None,
+    robots: Annotated[
+        int,
+        typer.Option(
+            help="Number of robots the graph is split among: 1 to the number of poses. Only "
+            "the distributed methods use it; the default method, lm, is centralised and "
+            "solves the whole graph whatever --robots says."
+        ),
+    ] = 1,
+    partition: Annotated[
+        str, typer.Option(help="How poses are split among robots: metis or contiguous.")
+    ] = "metis",
+    seed: Annotated[int, typer.Option(help="Seed of the partitioner (METIS).")] = 0,
+    option: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--option",
+            "-o",
+            metavar="KEY=VALUE",
+            help="Extra keyword option for the method (repeatable); VALUE is read as JSON "
+            "when it parses, else as a string. KEY must be one of the method's options (an "
+            "unknown KEY lists them); the start is --init, not -o init.",
+        ),
+    ] = None,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print exactly one JSON object on stdout.")
+    ] = False,
+    threads: CommandThreads = 1,
+) -> None:
+    """Solve one pose graph with one method and report F, F_chordal, chi2 and timings.
+
+    Progress (stage, rounds, elapsed time) is shown on stderr if a terminal, then erased.
+    """
+    import contextlib
+
+    arguments = dict(
+        method=method,
+        init=init,
+        iterations=iterations,
+        seconds=seconds,
+        robots=robots,
+        partition=partition,
+        seed=seed,
+        options=parse_method_options(option or []),
+    )
+    live = SolveProgress(f"loading {source}…") if sys.stderr.isatty() else None
+    from popbench.threads import limited_threads
+
+    with limited_threads(threads), live if live is not None else contextlib.nullcontext():
+        record = solve_record(source, **arguments, progress=live)
+    if json_output:
+        typer.echo(json.dumps(record))
+    else:
+        _print_summary(record)

@@ -1,0 +1,114 @@
+"""``popbench train``: GA-SAC actors for the learned methods.
+
+The trainer lives in ``agents/``, a layer above the core: it is named here by
+``"module:attribute"`` strings and imported on first use (:func:`popbench.methods.load_object`,
+as the methods' solve functions are), so ``popbench`` never imports ``agents`` at import time.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from popbench.cli.options import CommandThreads
+from popbench.errors import ValueRangeError
+
+# What ``popbench train`` runs, loaded lazily: the named configurations and the training loop.
+TRAINING = {
+    "presets": "agents.config:PRESETS",  # dict[str, agents.config.TrainConfig]
+    "train": "agents.trainer:train",  # (TrainConfig, resume=bool) -> a run with .summary()
+}
+
+
+TRAIN_ENVS = ("V1", "V2", "V3")
+TRAIN_DEVICES = ("cpu", "cuda")
+
+
+def train_config(
+    env: str,
+    robots: int,
+    seed: int,
+    frames: int | None,
+    device: str,
+    out: str | None,
+    preset: str,
+    progress: bool = True,
+):
+    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied."""
+    import dataclasses
+
+    from popbench.methods import load_object
+
+    presets = load_object(TRAINING["presets"])  # agents.config.PRESETS
+
+    if env not in TRAIN_ENVS:
+        raise ValueRangeError("--env", env, " or ".join(TRAIN_ENVS))
+    if robots < 1:
+        raise ValueRangeError("--robots", robots, "an integer ≥ 1")
+    if frames is not None and frames < 1:
+        raise ValueRangeError("--frames", frames, "an integer ≥ 1")
+    if device not in TRAIN_DEVICES:
+        raise ValueRangeError("--device", device, " or ".join(TRAIN_DEVICES))
+    if preset not in presets:
+        raise ValueRangeError("--preset", preset, " or ".join(presets))
+    if device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
+    config = presets[preset]
+    experiment = dataclasses.replace(
+        config.experiment,
+        noise=env,
+        robots=robots,
+        seed=seed,
+        device=device,
+        frames=config.experiment.frames if frames is None else frames,
+        out_dir=out or f"runs/ga-sac-{env}-n{robots}-s{seed}",
+        progress=progress,
+    )
+    return dataclasses.replace(config, experiment=experiment)
+
+
+EPILOG = (
+    "Examples:\n\n"
+    "  popbench train --env V2 --robots 7 --seed 0\n\n"
+    "  popbench train --env V2 --robots 3 --preset cpu-small --frames 20000 --out runs/n3\n\n"
+    "Writes checkpoint.pt, metrics.csv and learning_curve.png into --out; a rerun with the "
+    "same --out resumes from checkpoint.pt unless --no-resume."
+)
+
+
+def train_command(
+    env: Annotated[str, typer.Option(help="Training noise setting: V1, V2 or V3.")] = "V2",
+    robots: Annotated[int, typer.Option(help="Team size n (the critic is built for n).")] = 7,
+    seed: Annotated[int, typer.Option(help="Seed of the environments, torch and replay.")] = 0,
+    frames: Annotated[
+        int | None, typer.Option(help="Total environment frames (default: the preset's).")
+    ] = None,
+    device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
+    out: Annotated[
+        str | None, typer.Option(help="Run directory (default runs/ga-sac-ENV-nN-sS).")
+    ] = None,
+    resume: Annotated[
+        bool, typer.Option("--resume/--no-resume", help="Continue from OUT/checkpoint.pt.")
+    ] = True,
+    preset: Annotated[
+        str,
+        typer.Option(
+            help="Model/algorithm sizes: paper (5×128 GNN, §IV-A), cpu-small or cpu-imitation "
+            "(imitation of the expert first, then GA-SAC)."
+        ),
+    ] = "paper",
+    threads: CommandThreads = 1,
+) -> None:
+    """Train GA-SAC actors (TorchRL collector + replay) with checkpoints and learning curves."""
+    from popbench.methods import load_object
+    from popbench.threads import limited_threads
+
+    run_training = load_object(TRAINING["train"])  # agents.trainer.train
+    config = train_config(env, robots, seed, frames, device, out, preset)
+    with limited_threads(threads):
+        summary = run_training(config, resume=resume).summary()
+    typer.echo(summary)
