@@ -61,7 +61,8 @@ def make_core(task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: 
     """(core, sampler): a PGOCore over `batch` synthetic problems of the experiment's kind with
     measurement reward, and its seeded problem stream."""
     from envs import make_problem_source
-    from envs.core import PGOCore, ProblemSampler
+    from envs.core import PGOCore
+    from envs.sampler import ProblemSampler
 
     source, dims, _ = make_problem_source(
         experiment.robots, experiment.noise, poses_per_robot=experiment.poses_per_robot

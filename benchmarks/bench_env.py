@@ -22,7 +22,8 @@ import time
 import torch
 
 from envs import make_torchrl_env
-from envs.core import ACTION_SCALES, CORRECTIONS, OBSERVATIONS, _gather_rows, residuals
+from envs.core import ACTION_SCALES, CORRECTIONS, OBSERVATIONS
+from envs.geometry import _gather_rows, residuals
 
 
 def first_valid_action(env, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:

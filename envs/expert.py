@@ -30,7 +30,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from envs.core import PGOCore, _gather_rows, between, wrap
+from envs.core import PGOCore
+from envs.geometry import _gather_rows, between, wrap
 from envs.tree import place_separators
 from popbench.distributed import DistributedProblem
 from popbench.solvers.local_lm import local_optima as solve_local_graphs

@@ -25,8 +25,9 @@ import torch
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from envs.core import DEFAULT_DELTA_MAX, PGOCore, ProblemSampler, ProblemSource
+from envs.core import DEFAULT_DELTA_MAX, PGOCore
 from envs.observation import EDGE_FEATURES, NODE_FEATURES, Dimensions
+from envs.sampler import ProblemSampler, ProblemSource
 
 _MASKS = ("node_mask", "edge_mask", "processed")
 

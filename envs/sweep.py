@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import torch
 
-from envs.core import PGOCore, _gather_rows, residuals
+from envs.core import PGOCore
 from envs.expert import Expert
+from envs.geometry import _gather_rows, residuals
 
 STEP = 1e-6  # forward-difference step of J [m, rad]
 DAMPING = 1e-9  # μ, relative to the largest diagonal entry of JᵀJ

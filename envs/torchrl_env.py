@@ -24,8 +24,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from envs.core import DEFAULT_DELTA_MAX, PGOCore, ProblemSampler, ProblemSource
+from envs.core import DEFAULT_DELTA_MAX, PGOCore
 from envs.observation import EDGE_FEATURES, NODE_FEATURES, Dimensions
+from envs.sampler import ProblemSampler, ProblemSource
 
 
 class PGOEnv(EnvBase):

@@ -69,7 +69,7 @@ def random_edges(mask: torch.Tensor, generator: torch.Generator) -> torch.Tensor
 
 
 def test_torch_se2_matches_numpy(rng: np.random.Generator) -> None:
-    from envs.core import between, compose, wrap
+    from envs.geometry import between, compose, wrap
 
     angles = np.concatenate([rng.uniform(-20, 20, 200), [np.pi, -np.pi, 3 * np.pi, 0.0]])
     np.testing.assert_allclose(wrap(torch.tensor(angles)).numpy(), se2.wrap(angles), atol=1e-12)

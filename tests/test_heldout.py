@@ -58,7 +58,7 @@ def test_a_second_run_reuses_every_cell(small_run, monkeypatch):
 def test_heldout_seeds_are_above_every_training_seed():
     config = heldout.HeldoutConfig(problems=2, rows=("initial",))
     seeds = [spec["problem_seed"] for spec in heldout.cell_specs(config)]
-    assert min(seeds) >= 2**32  # envs.core.ProblemSampler draws 32-bit seeds
+    assert min(seeds) >= 2**32  # envs.sampler.ProblemSampler draws 32-bit seeds
 
 
 def test_unknown_row_is_refused(tmp_path):

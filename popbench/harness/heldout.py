@@ -7,7 +7,7 @@ learned actors, every local graph at its own optimum (``local-lm``), or the grou
 ``initial`` is the start itself, without a consensus.
 
 Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
-(``envs.core.ProblemSampler``) draw 32-bit seeds, all below the base, so the two never meet.
+(``envs.sampler.ProblemSampler``) draw 32-bit seeds, all below the base, so the two never meet.
 """
 
 from __future__ import annotations
