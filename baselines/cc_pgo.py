@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.rbcd import LocalOptions, RBCDOptions, solve_rbcd
+from baselines.rbcd import RBCDOptions, solve_rbcd
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
 
@@ -59,11 +59,12 @@ def solve(
     """
     graph = problem.graph
     robots = np.zeros(graph.num_poses, np.int64) if graph.robots is None else graph.robots
-    options = RBCDOptions(
+    options = RBCDOptions.with_local(
+        rtr_iterations,
+        tcg_iterations,
+        rounding,
+        selection,
         accelerated=accelerated,
         restart="fixed",
-        selection=selection,
-        local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
-        rounding=rounding,
     )
     return solve_rbcd(graph, robots, budget or Budget(), options, rank, certify, seed)

@@ -18,7 +18,7 @@ assignment as given.
 
 from __future__ import annotations
 
-from baselines.rbcd import LocalOptions, RBCDOptions, solve_rbcd
+from baselines.rbcd import RBCDOptions, solve_rbcd
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
 from popbench.partition import partition
@@ -57,11 +57,7 @@ def solve(
         robots = partition(graph, problem.num_robots, "metis", seed)
     else:
         robots = graph.robots
-    options = RBCDOptions(
-        accelerated=True,
-        restart="adaptive",
-        selection=selection,
-        local=LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations),
-        rounding=rounding,
+    options = RBCDOptions.with_local(
+        rtr_iterations, tcg_iterations, rounding, selection, accelerated=True, restart="adaptive"
     )
     return solve_rbcd(graph, robots, budget or Budget(), options, rank, certify, seed)

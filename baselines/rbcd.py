@@ -725,6 +725,21 @@ class RBCDOptions:
     batch_below: int = BATCH_BELOW_POSES
     rounding: str = "svd"
 
+    @classmethod
+    def with_local(
+        cls,
+        rtr_iterations: int,
+        tcg_iterations: int,
+        rounding: str,
+        selection: str,
+        accelerated: bool,
+        restart: str,
+    ) -> RBCDOptions:
+        """The options with ``rtr_iterations`` trust-region steps of ``tcg_iterations``
+        truncated-CG iterations per robot update (:class:`LocalOptions`), the rest as named."""
+        local = LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations)
+        return cls(accelerated, restart, selection=selection, local=local, rounding=rounding)
+
 
 @dataclasses.dataclass(frozen=True)
 class RBCDRun:
