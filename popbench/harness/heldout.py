@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from popbench.harness.cache import CellCache, code_fingerprint
+from popbench.harness.cache import code_fingerprint
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
-from popbench.harness.runner import Spec, execution_summary, run_cells
+from popbench.harness.runner import Spec, run_experiment
 from popbench.methods import load_object
 from popbench.metrics import bootstrap_ci
 from popbench.reconcile import DEFAULT_CONSENSUS
@@ -225,21 +225,16 @@ def run_heldout(
         from popbench.errors import ValueRangeError
 
         raise ValueRangeError("heldout rows", ",".join(unknown), ", ".join(ROWS))
-    cache = CellCache(config.out / "cells")
-    execution = execution or Execution.serial()
     specs = cell_specs(config)
-    frame = pd.DataFrame(
-        run_cells(specs, compute_cell, cache, execution=execution, progress=progress, fresh=fresh)
+    rows, ran = run_experiment(
+        specs, compute_cell, config.out, execution=execution, progress=progress, fresh=fresh
     )
+    frame = pd.DataFrame(rows)
     table = summary(frame)
     config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "heldout.csv", index=False, float_format="%.10g")
     table.to_csv(config.out / "summary.csv", index=False, float_format="%.10g")
     (config.out / "heldout.md").write_text(markdown(table))
     figure(frame, config.out / "heldout")
-    write_manifest(
-        config.out,
-        wall_s=time.perf_counter() - started,
-        execution=execution_summary(execution, cache, specs),
-    )
+    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return table

@@ -18,11 +18,11 @@ import pandas as pd
 
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, reports
-from popbench.harness.cache import CellCache, provenance
+from popbench.harness.cache import provenance
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table2_cell
-from popbench.harness.runner import Spec, execution_summary, run_cells
+from popbench.harness.runner import Spec, run_experiment
 from popbench.initial import with_start
 from popbench.methods import Budget, get_method, method_options
 from popbench.outliers import candidate_mask, inject_outliers, precision_recall
@@ -127,10 +127,8 @@ def run_outliers(
     started = time.perf_counter()
     problems.check_inputs(config.datasets, (config.robots,))
     specs = cell_specs(config)
-    execution = execution or Execution.serial()
-    cache = CellCache(config.out / "cells")
-    rows = run_cells(
-        specs, compute_cell, cache, execution=execution, progress=progress, fresh=fresh
+    rows, ran = run_experiment(
+        specs, compute_cell, config.out, execution=execution, progress=progress, fresh=fresh
     )
     frame = pd.DataFrame(rows)
     paper = [
@@ -143,9 +141,5 @@ def run_outliers(
     frame.to_csv(config.out / "outliers.csv", index=False, float_format="%.10g")
     (config.out / "outliers.md").write_text(reports.outliers_markdown(frame))
     (config.out / "outliers.tex").write_text(reports.outliers_latex(frame))
-    write_manifest(
-        config.out,
-        wall_s=time.perf_counter() - started,
-        execution=execution_summary(execution, cache, specs),
-    )
+    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame

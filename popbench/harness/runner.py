@@ -6,6 +6,7 @@ import os
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -140,3 +141,20 @@ def execution_summary(execution: Execution, cache: CellCache, specs: Sequence[Sp
         "note": f"{beside} of {len(specs)} cells were timed while other cells ran at once "
         "(jobs > 1): their wall_s and parallel_s include that contention",
     }
+
+
+def run_experiment(
+    specs: Sequence[Spec],
+    compute: Callable[[Spec], Row],
+    out: Path,
+    *,
+    execution: Execution | None = None,
+    progress: bool = True,
+    fresh: bool = False,
+) -> tuple[list[Row], dict]:
+    """Rows of all ``specs`` (:func:`run_cells`, cached under ``out/cells``) and the manifest's
+    ``execution`` block of the run (:func:`execution_summary`)."""
+    execution = execution or Execution.serial()
+    cache = CellCache(out / "cells")
+    rows = run_cells(specs, compute, cache, execution=execution, progress=progress, fresh=fresh)
+    return rows, execution_summary(execution, cache, specs)

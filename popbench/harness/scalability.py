@@ -13,11 +13,11 @@ from pathlib import Path
 import pandas as pd
 
 from popbench.harness import problems, table1
-from popbench.harness.cache import CellCache, provenance
+from popbench.harness.cache import provenance
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.plotting import pyplot, save_figure
-from popbench.harness.runner import Spec, execution_summary, run_cells
+from popbench.harness.runner import Spec, run_experiment
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
 METHODS = ("mm-pgo", "prop-v1", "prop-v2")  # the paper's Fig. 5
@@ -68,11 +68,9 @@ def run_scalability(
     started = time.perf_counter()
     problems.check_inputs((config.dataset,), config.robots)
     specs = cell_specs(config)
-    cache = CellCache(config.out / "cells")
-    execution = execution or Execution.serial()
     everything = [table1.optimum_spec(config.dataset), *specs]
-    computed = run_cells(
-        everything, table1.compute, cache, execution=execution, progress=progress, fresh=fresh
+    computed, ran = run_experiment(
+        everything, table1.compute, config.out, execution=execution, progress=progress, fresh=fresh
     )
     optimum = computed[0]["F_star"]
     frame = pd.DataFrame(computed[1:])
@@ -81,11 +79,7 @@ def run_scalability(
     config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "scalability.csv", index=False, float_format="%.10g")
     scalability_figure(frame, config.out / "scalability")
-    write_manifest(
-        config.out,
-        wall_s=time.perf_counter() - started,
-        execution=execution_summary(execution, cache, everything),
-    )
+    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame
 
 

@@ -16,11 +16,11 @@ from typing import Any
 import pandas as pd
 
 from popbench.harness import problems, reports
-from popbench.harness.cache import CellCache, provenance
+from popbench.harness.cache import provenance
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table1_cell
-from popbench.harness.runner import Spec, execution_summary, run_cells
+from popbench.harness.runner import Spec, run_experiment
 from popbench.methods import Budget, distributed_methods, get_method
 
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
@@ -138,11 +138,9 @@ def run_table1(
     started = time.perf_counter()
     problems.check_inputs(config.datasets, config.robots)
     specs = cell_specs(config)
-    cache = CellCache(config.out / "cells")
-    execution = execution or Execution.serial()
     everything = [*(optimum_spec(d) for d in config.datasets), *specs]
-    computed = run_cells(
-        everything, compute, cache, execution=execution, progress=progress, fresh=fresh
+    computed, ran = run_experiment(
+        everything, compute, config.out, execution=execution, progress=progress, fresh=fresh
     )
     optima = {row["dataset"]: row["F_star"] for row in computed[: len(config.datasets)]}
     rows = computed[len(config.datasets) :]
@@ -181,9 +179,5 @@ def run_table1(
     (config.out / "table1.md").write_text(reports.table1_markdown(frame))
     (config.out / "table1.tex").write_text(reports.table1_latex(frame))
     reports.table1_figure(frame, config.out / "table1")
-    write_manifest(
-        config.out,
-        wall_s=time.perf_counter() - started,
-        execution=execution_summary(execution, cache, everything),
-    )
+    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame
