@@ -67,15 +67,7 @@ def moved(frames: np.ndarray, poses: np.ndarray, robots: np.ndarray) -> np.ndarr
 
 def inter_robot_graph(problem: DistributedProblem) -> PoseGraph:
     """The global graph restricted to its inter-robot edges (all vertices kept)."""
-    graph = problem.graph
-    edges = problem.inter_robot_edges
-    return graph.replace(
-        tails=graph.tails[edges],
-        heads=graph.heads[edges],
-        measurements=graph.measurements[edges],
-        information=graph.information[edges],
-        kinds=graph.kinds[edges],
-    )
+    return problem.graph.edge_subset(problem.inter_robot_edges)
 
 
 def frame_jacobians(
