@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import time
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +20,15 @@ from rich.progress import (
 )
 
 from popbench.harness.cache import CellCache, code_fingerprint
-from popbench.harness.executors import CellTask, Execution, SerialExecutor, make_executor
+from popbench.harness.executors import (
+    CellTask,
+    Execution,
+    Row,
+    SerialExecutor,
+    Spec,
+    make_executor,
+)
 
-Spec = Mapping[str, Any]
-Row = dict[str, Any]
 RUNNING_SHOWN = 3  # running cells named in the progress bar; more are counted
 
 
