@@ -155,10 +155,12 @@ def _ratio(values: pd.Series, row: str, reference: str) -> float:
 
 
 def _closed(values: pd.Series, row: str) -> float:
-    """(v_no-op − v_row) / (v_no-op − v_local-lm), NaN without both references."""
+    """(v_no-op − v_row) / (v_no-op − v_local-lm); NaN without both references or when local-lm
+    is not below the no-op (then there is no gap to close)."""
     if "no-op" not in values or "local-lm" not in values:
         return float("nan")
-    return float((values["no-op"] - values[row]) / (values["no-op"] - values["local-lm"]))
+    gap = values["no-op"] - values["local-lm"]
+    return float((values["no-op"] - values[row]) / gap) if gap > 0 else float("nan")
 
 
 def markdown(table: pd.DataFrame) -> str:
