@@ -32,37 +32,7 @@ Action (per agent)
     translation noise and ≈ 1.4–5 σ of rotation noise, but cannot teleport a pose (the paper's
     safety constraint, §III-B footnote).
 
-Correction modes (``correction=``; :mod:`envs.tree` for the tree)
-    ``"pose"`` (default, the paper's literal reading): eq. C above, only ``q`` moves.
-    ``"subtree"``: the endpoint farther from the root in the agent's spanning tree (the *mover*,
-    :attr:`envs.tree.SpanningTree.mover`; the head unless the head is an ancestor of the tail)
-    is placed so that the edge's relative pose changes by exactly ``Δ`` and moves rigidly with
-    its whole subtree; every edge inside the subtree or outside it keeps its relative pose, only
-    the edges that cross the subtree's boundary change (and only they are refreshed). On a tree
-    edge that leaves every other tree edge's relative pose unchanged; on a loop closure the
-    mover's own tree edge to its parent changes with it. With the
-    subtree mode the separator copies are placed from their owned neighbours at every episode
-    start (:func:`envs.tree.place_separators`; ``place_separators=`` overrides).
-
-Observation modes (``observation=``)
-    ``"paper"``: node poses in the frame of the agent's first owned pose. ``"invariant"``: node
-    poses relative to their tree parent (the root: the identity), so that, with the residuals, the
-    whole observation is invariant to a rigid motion of any subtree except on the moved
-    subtree's root and on the edges that cross its boundary.
-
-Action scale (``action_scale=``)
-    ``"metric"``: ``Δ`` in metres / radians. ``"whitened"``: ``Δ`` in units of the chosen edge's
-    own standard deviation, ``Δ_metric = Λ^−½ Δ`` (:func:`envs.observation.whitening`), clipped
-    to ``|Δ| ≤`` :data:`WHITENED_DELTA_MAX` before and to ``Δmax`` after the conversion; the
-    observed residuals become ``Λ^½ r``, the measurement length attribute ``√τ ‖t̃‖`` and the
-    ``log diag Λ`` attributes are centred on the agent's mean, so the actor sees no absolute
-    noise scale.
-
-Base step (``base=``)
-    ``"none"``: the action's ``Δ`` is the correction. ``"gauss-newton"``: a residual action — the
-    environment first computes one Gauss–Newton step on the chosen edge (the Δ of
-    :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
-    and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step.
+Modes (correction, observation, action scale, base step): see :class:`PGOCore`.
 
 Localisation error ``L`` of agent ``i`` (reward signal)
     ``L_i(x) = Σ_{e ∈ E_i} κ_e wrap(θ_q − θ_p − θ*_e)² + τ_e ‖R(θ_p)ᵀ(t_q − t_p) − t*_e‖²``
@@ -151,11 +121,46 @@ class PGOCore:
             unprocessed edge, or the no-op when none is left).
         device: torch device of every tensor.
         dtype: floating dtype of the pose state (observations are float32).
-        correction: ``"pose"`` or ``"subtree"`` (module docstring).
+        correction: ``"pose"`` or ``"subtree"`` (below).
         observation: ``"paper"`` or ``"invariant"``.
         action_scale: ``"metric"`` or ``"whitened"``.
         place_separators: place the separator copies at each episode start (default: in the
             subtree mode only).
+        base: ``"none"`` or ``"gauss-newton"``.
+
+    The modes:
+
+    Correction modes (``correction=``; :mod:`envs.tree` for the tree)
+        ``"pose"`` (default, the paper's literal reading): eq. C above, only ``q`` moves.
+        ``"subtree"``: the endpoint farther from the root in the agent's spanning tree (the *mover*,
+        :attr:`envs.tree.SpanningTree.mover`; the head unless the head is an ancestor of the tail)
+        is placed so that the edge's relative pose changes by exactly ``Δ`` and moves rigidly with
+        its whole subtree; every edge inside the subtree or outside it keeps its relative pose, only
+        the edges that cross the subtree's boundary change (and only they are refreshed). On a tree
+        edge that leaves every other tree edge's relative pose unchanged; on a loop closure the
+        mover's own tree edge to its parent changes with it. With the
+        subtree mode the separator copies are placed from their owned neighbours at every episode
+        start (:func:`envs.tree.place_separators`; ``place_separators=`` overrides).
+
+    Observation modes (``observation=``)
+        ``"paper"``: node poses in the frame of the agent's first owned pose. ``"invariant"``:
+        node poses relative to their tree parent (the root: the identity), so that, with the
+        residuals, the whole observation is invariant to a rigid motion of any subtree except
+        on the moved subtree's root and on the edges that cross its boundary.
+
+    Action scale (``action_scale=``)
+        ``"metric"``: ``Δ`` in metres / radians. ``"whitened"``: ``Δ`` in units of the chosen edge's
+        own standard deviation, ``Δ_metric = Λ^−½ Δ`` (:func:`envs.observation.whitening`), clipped
+        to ``|Δ| ≤`` :data:`WHITENED_DELTA_MAX` before and to ``Δmax`` after the conversion; the
+        observed residuals become ``Λ^½ r``, the measurement length attribute ``√τ ‖t̃‖`` and the
+        ``log diag Λ`` attributes are centred on the agent's mean, so the actor sees no absolute
+        noise scale.
+
+    Base step (``base=``)
+        ``"none"``: the action's ``Δ`` is the correction. ``"gauss-newton"``: a residual action —
+        the environment first computes one Gauss–Newton step on the chosen edge (the Δ of
+        :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
+        and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step.
     """
 
     def __init__(
