@@ -27,7 +27,8 @@ Result fields
     alone, which loses the batching), plus the setup time / n and the consensus's own parallel_s
     (popbench.consensus, "Accounting": per ADMM iteration the slowest robot's factorise-and-solve
     time plus its share of the batched vectorised pass) and the alignment's wall time (one small
-    solve). prop-v2 adds LM's wall time (centralised). extras: actor_s (setup + steps) and
+    solve). prop-v2 adds LM's wall time (centralised) to prop-v1's times, also when it starts
+    from prop-v1's cached cell (popbench.harness.refining). extras: actor_s (setup + steps) and
     consensus_s (alignment + ADMM), the split of wall_s [s]; F_actor and F_aligned, F of the
     assembled estimate after the episode and after the alignment.
 Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
@@ -218,12 +219,18 @@ def solve_prop_v2(
     checkpoint: str | Path | None = None,
     device: str = "cpu",
     lm_iterations: int = PROP_V2_LM_ITERATIONS,
+    refined: Result | None = None,
     **options: object,
 ) -> Result:
-    """prop-v2: prop-v1, then `lm_iterations` (75) Levenberg–Marquardt iterations."""
+    """prop-v2: prop-v1, then `lm_iterations` (75) Levenberg–Marquardt iterations.
+
+    `refined`: prop-v1's Result on this problem with these options (the harness passes its
+    cached cell, popbench.harness.refining); None runs prop-v1 first. Either way wall_s and
+    parallel_s are prop-v1's plus the LM's [s].
+    """
     from popbench.solvers.lm import solve_graph
 
-    first = solve_prop_v1(problem, budget, seed, checkpoint, device, **options)
+    first = refined or solve_prop_v1(problem, budget, seed, checkpoint, device, **options)
     started = time.perf_counter()
     refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations)
     lm_s = time.perf_counter() - started

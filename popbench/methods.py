@@ -97,7 +97,10 @@ class MethodRecord:
             reference, not one of Table I's distributed methods).
         episodic: it runs one episode of fixed length; ``Budget.iterations`` does not bound it.
         refines: the registered method whose output it refines (its ``**options`` are passed
-            on to that method's solve), or None.
+            on to that method's solve), or None. Its solve takes ``refined=``, that method's
+            Result on the same problem with the same options (None: it computes it first), and
+            reports ``wall_s`` / ``parallel_s`` as that Result's plus its refinement's [s]; the
+            harness passes the refined method's cached cell (:mod:`popbench.harness.refining`).
     """
 
     name: str
@@ -186,11 +189,12 @@ def method_options(name: str) -> tuple[str, ...]:
     named parameters after ``problem`` and ``budget`` (and those of the method it refines,
     :attr:`MethodRecord.refines`, which gets its ``**options``). A trailing ``**_`` swallows
     anything else, so callers that take options from users should check them against this
-    list."""
+    list. A refiner's ``refined`` (a Result the harness passes) is not a user option."""
     names = [
         parameter.name
         for parameter in list(inspect.signature(get_method(name)).parameters.values())[2:]
         if parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
+        and parameter.name != "refined"
     ]
     refined = method_record(name).refines
     if refined is not None:

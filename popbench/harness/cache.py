@@ -7,6 +7,11 @@ for the learned methods, the sha256 of the actor checkpoint (:func:`checkpoint_s
 file name is a hash of that JSON and the file holds both the specification and the measured
 row. A changed input file, code or checkpoint therefore gives a new key and the cell is
 recomputed; the old file is left in the folder, unused.
+
+A cell of a method that another refines (:mod:`popbench.harness.refining`) also keeps its whole
+:class:`~popbench.methods.Result` in ``<key>.result.npz`` (poses, history, inlier mask, and the
+scalars and extras as JSON), which the refiner's cell starts from; the refiner's ``wall_s`` and
+``parallel_s`` are the refined method's cached times plus the refinement's own.
 """
 
 from __future__ import annotations
@@ -18,7 +23,12 @@ import os
 from collections.abc import Iterable, Mapping
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from popbench.methods import Result
 
 # The packages whose code computes a cell: the core, the baselines, the agents and their envs.
 CODE_PACKAGES = ("popbench", "baselines", "agents", "envs")
@@ -115,6 +125,9 @@ class CellCache:
     def _path(self, spec: Mapping[str, Any]) -> Path:
         return self.folder / f"{cell_key(spec)}.json"
 
+    def _result_path(self, spec: Mapping[str, Any]) -> Path:
+        return self.folder / f"{cell_key(spec)}.result.npz"
+
     def get(self, spec: Mapping[str, Any]) -> dict[str, Any] | None:
         """The cached row of ``spec``, or None if the cell has not finished."""
         path = self._path(spec)
@@ -151,3 +164,54 @@ class CellCache:
             content["measured"] = measured
         temporary.write_text(json.dumps(content, indent=1, default=float))
         os.replace(temporary, path)
+
+    def put_result(self, spec: Mapping[str, Any], result: Result) -> None:
+        """Store the whole :class:`~popbench.methods.Result` of ``spec`` atomically (arrays
+        exactly, the scalars and ``extras`` as JSON), for a method that another refines."""
+        path = self._result_path(spec)
+        temporary = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        scalars = {
+            field: getattr(result, field)
+            for field in (
+                "F",
+                "F_chordal",
+                "chi2",
+                "wall_s",
+                "parallel_s",
+                "iterations",
+                "messages",
+            )
+        }
+        arrays = {"poses": result.poses, "history": result.history}
+        if result.inlier_mask is not None:
+            arrays["inlier_mask"] = result.inlier_mask
+        meta = json.dumps({"scalars": scalars, "extras": result.extras}, default=float)
+        np.savez(temporary, **arrays, meta=np.array(meta))
+        os.replace(temporary, path)
+
+    def result(self, spec: Mapping[str, Any]) -> Result | None:
+        """The cached :class:`~popbench.methods.Result` of ``spec`` (:meth:`put_result`), or
+        None if there is none (or it is unreadable: recompute it)."""
+        from popbench.methods import Result
+
+        path = self._result_path(spec)
+        if not path.exists():
+            return None
+        try:
+            with np.load(path) as stored:
+                meta = json.loads(str(stored["meta"]))
+                mask = stored["inlier_mask"] if "inlier_mask" in stored.files else None
+                return Result(
+                    poses=stored["poses"],
+                    history=stored["history"],
+                    inlier_mask=mask,
+                    extras=meta["extras"],
+                    **meta["scalars"],
+                )
+        except (OSError, ValueError, KeyError, json.JSONDecodeError):
+            return None
+
+    def discard(self, spec: Mapping[str, Any]) -> None:
+        """Forget the cell of ``spec``: its row and its result (if any)."""
+        self._path(spec).unlink(missing_ok=True)
+        self._result_path(spec).unlink(missing_ok=True)

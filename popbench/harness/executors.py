@@ -13,7 +13,9 @@ cell that finished, whichever executor ran it. The executors only decide where
   the thread pin in their environment;
 * :class:`RayExecutor` — one Ray task per cell (``num_cpus=1``) on a running Ray cluster
   (``address``) or on a local instance started for the run; the rows come back to the driver,
-  which writes them into its cache (the cluster's nodes need not share a disk).
+  which writes them into its cache (the cluster's nodes need not share a disk; a node that sees
+  the driver's cell folder reads and writes the refined cells there, see
+  :mod:`popbench.harness.refining`).
 """
 
 from __future__ import annotations
@@ -92,7 +94,10 @@ class CellTask:
     """One cell for :func:`run_cell`: ``compute`` must be importable (a module-level function)
     for the process and Ray executors; ``cache_folder`` None leaves the writing to the driver;
     ``code`` the driver's :func:`popbench.harness.cache.code_fingerprint` (None: unchecked);
-    ``measured`` how the cell's time is measured (:meth:`Execution.record`), cached beside it."""
+    ``measured`` how the cell's time is measured (:meth:`Execution.record`), cached beside it;
+    ``shared_folder`` the run's cell folder, where ``compute`` reads and writes the cells a
+    refining method starts from (:mod:`popbench.harness.refining`) when the worker sees it
+    (None, or no such folder on the worker: it computes them itself)."""
 
     compute: Compute
     spec: Spec
@@ -100,18 +105,22 @@ class CellTask:
     threads: int = DEFAULT_THREADS
     code: str | None = None
     measured: Mapping[str, Any] | None = None
+    shared_folder: Path | None = None
 
 
 def run_cell(task: CellTask) -> Row:
     """Compute one cell with its thread pin and cache it (the function every executor runs)."""
     from popbench.harness.cache import CellCache, code_fingerprint
+    from popbench.harness.refining import using_cache
 
     if task.code is not None and task.code != code_fingerprint():
         raise CodeMismatchError(
             f"worker on {os.uname().nodename} runs code {code_fingerprint()}, the driver "
             f"{task.code}: install the same popbench on every node"
         )
-    with limited_threads(task.threads):
+    shared = task.shared_folder
+    cache = CellCache(shared) if shared is not None and Path(shared).is_dir() else None
+    with limited_threads(task.threads), using_cache(cache, task.measured):
         row = task.compute(task.spec)
     if task.cache_folder is not None:
         CellCache(task.cache_folder).put(task.spec, row, measured=task.measured)

@@ -19,7 +19,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from popbench.harness.cache import CellCache, code_fingerprint
+from popbench.harness.cache import CellCache, cell_key, code_fingerprint
 from popbench.harness.executors import (
     CellTask,
     Execution,
@@ -60,6 +60,7 @@ def run_cells(
     console: Console | None = None,
     progress: bool = True,
     fresh: bool = False,
+    depends: Callable[[Spec], Spec | None] | None = None,
 ) -> list[Row]:
     """Rows of all ``specs`` in order: cached rows are reused, the others computed by the
     ``execution``'s executor (default: serially in this process) and cached as each finishes
@@ -69,10 +70,25 @@ def run_cells(
     For the process and Ray executors ``compute`` must be a module-level function (it is sent
     to the workers by name). Each cached file also records how its time was measured
     (:meth:`Execution.record`: executor, jobs, cores, threads).
+
+    ``depends(spec)``, if given, is the cell that ``spec``'s cell starts from (a refining
+    method's, :func:`popbench.harness.refining.refined_spec`) or None: such a cell is submitted
+    only after that cell, if it is one of ``specs``, has finished; with ``fresh``, the cached
+    ones that are not among ``specs`` are discarded, so they are recomputed too.
     """
     execution = execution or Execution.serial()
     rows: list[Row | None] = [None if fresh else cache.get(spec) for spec in specs]
     todo = deque(k for k, row in enumerate(rows) if row is None)
+    keys = [cell_key(spec) for spec in specs]
+    needs: dict[int, str] = {}  # cell -> key of the cell of this run it starts from
+    for k, spec in enumerate(specs):
+        dependency = depends(spec) if depends is not None else None
+        if dependency is None:
+            continue
+        if cell_key(dependency) in keys:
+            needs[k] = cell_key(dependency)
+        elif fresh:
+            cache.discard(dependency)
     computed = len(todo)
     console = console or Console(stderr=True)
     if len(todo) < len(specs):
@@ -87,6 +103,11 @@ def run_cells(
     measured = execution.record(executor.workers)
     code = None if serial else code_fingerprint()
     folder = cache.folder if executor.writes_cache else None
+    unfinished = {keys[k] for k in todo}
+
+    def ready(k: int) -> bool:
+        return needs.get(k) not in unfinished
+
     columns = (
         TextColumn("{task.description}"),
         BarColumn(),
@@ -102,11 +123,16 @@ def run_cells(
         with Progress(*columns, console=console, disable=not progress) as bar:
             task = bar.add_task("cells", total=len(todo))
             while todo or pending:
-                while todo and len(pending) < executor.workers:
-                    k = todo.popleft()
+                while len(pending) < executor.workers:
+                    k = next((j for j in todo if ready(j)), None)
+                    if k is None:
+                        break
+                    todo.remove(k)
                     labels = [describe(specs[j]) for j in pending.values()]
                     bar.update(task, description=_running([*labels, describe(specs[k])]))
-                    cell = CellTask(compute, specs[k], folder, execution.threads, code, measured)
+                    cell = CellTask(
+                        compute, specs[k], folder, execution.threads, code, measured, cache.folder
+                    )
                     pending[executor.submit(cell)] = k
                 for handle in executor.wait(list(pending)):
                     k = pending.pop(handle)
@@ -114,6 +140,7 @@ def run_cells(
                     if not executor.writes_cache:
                         cache.put(specs[k], row, measured=measured)
                     rows[k] = row
+                    unfinished.discard(keys[k])
                     bar.advance(task)
                     bar.update(
                         task, description=_running([describe(specs[j]) for j in pending.values()])
@@ -156,10 +183,13 @@ def run_experiment(
     execution: Execution | None = None,
     progress: bool = True,
     fresh: bool = False,
+    depends: Callable[[Spec], Spec | None] | None = None,
 ) -> tuple[list[Row], dict]:
-    """Rows of all ``specs`` (:func:`run_cells`, cached under ``out/cells``) and the manifest's
-    ``execution`` block of the run (:func:`execution_summary`)."""
+    """Rows of all ``specs`` (:func:`run_cells`, cached under ``out/cells``; ``depends`` as
+    there) and the manifest's ``execution`` block of the run (:func:`execution_summary`)."""
     execution = execution or Execution.serial()
     cache = CellCache(out / "cells")
-    rows = run_cells(specs, compute, cache, execution=execution, progress=progress, fresh=fresh)
+    rows = run_cells(
+        specs, compute, cache, execution=execution, progress=progress, fresh=fresh, depends=depends
+    )
     return rows, execution_summary(execution, cache, specs)

@@ -15,13 +15,15 @@ from typing import Any
 
 import pandas as pd
 
+from popbench.distributed import DistributedProblem
 from popbench.harness import problems, reports
 from popbench.harness.cache import provenance
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table1_cell
+from popbench.harness.refining import refined_spec, solve_cell
 from popbench.harness.runner import Spec, run_experiment
-from popbench.methods import Budget, distributed_methods, get_method
+from popbench.methods import Budget, Result, distributed_methods
 
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
 ROBOTS = (3, 7, 35)
@@ -95,12 +97,18 @@ def compute(spec: Spec) -> dict[str, Any]:
 
 
 def compute_cell(spec: Spec) -> dict[str, Any]:
-    """Run one method on one split dataset and measure it."""
+    """Run one method on one split dataset and measure it (a refining method starts from the
+    refined method's cell: :mod:`popbench.harness.refining`)."""
     problem = problems.distributed_problem(
         spec["dataset"], spec["robots"], spec["init"], spec["partition"], spec["seed"]
     )
-    solve = get_method(spec["method"])
-    result = solve(problem, Budget(iterations=spec["iterations"]), seed=spec["seed"])
+    budget = Budget(iterations=spec["iterations"])
+    result = solve_cell(spec, problem, budget, {"seed": spec["seed"]}, cell_row)
+    return cell_row(spec, problem, result)
+
+
+def cell_row(spec: Spec, problem: DistributedProblem, result: Result) -> dict[str, Any]:
+    """The table row of ``result``, ``spec``'s method run on ``problem``."""
     graph = problem.graph
     return {
         "dataset": spec["dataset"],
@@ -140,7 +148,13 @@ def run_table1(
     specs = cell_specs(config)
     everything = [*(optimum_spec(d) for d in config.datasets), *specs]
     computed, ran = run_experiment(
-        everything, compute, config.out, execution=execution, progress=progress, fresh=fresh
+        everything,
+        compute,
+        config.out,
+        execution=execution,
+        progress=progress,
+        fresh=fresh,
+        depends=refined_spec,
     )
     optima = {row["dataset"]: row["F_star"] for row in computed[: len(config.datasets)]}
     rows = computed[len(config.datasets) :]
