@@ -18,7 +18,10 @@ prop-v2
 Result fields
     iterations = T (actor steps). history = F of the robots' copies after each step, counted
     edge by edge with each inter-robot edge half from each of its two robots (so history[0] is
-    F at the start), with the final entry replaced by F after consensus. inlier_mask: an edge is
+    F at the start), with the final entry replaced by F after consensus; history_s the makespan
+    at each entry (the setup / n plus the steps' step_s / n so far, the final entry also the
+    consensus's, so it equals parallel_s). prop-v2 appends F after each LM step, at prop-v1's
+    parallel_s plus the LM's wall time so far (its last entry: parallel_s). inlier_mask: an edge is
     an outlier when the layer-averaged gate of its final actor pass is ≤ 0.5 in *either* robot
     that holds it (an inter-robot edge is seen by two robots; one flag suffices). messages: the
     alignment's and the consensus's pose messages (the actor steps exchange nothing).
@@ -189,13 +192,17 @@ def solve_prop_v1(
     history = episode.history.copy()
     history[-1] = costs.F
     n = problem.num_robots
+    # the makespan at each step of the episode; the last entry is after the consensus
+    history_s = (episode.setup_s + np.concatenate([[0.0], np.cumsum(episode.step_s)])) / n
+    history_s[-1] += reconciled.parallel_s
     return Result(
         poses=reconciled.poses,
         **costs._asdict(),  # F, F_chordal, chi2
         wall_s=time.perf_counter() - started,
-        parallel_s=(episode.setup_s + float(episode.step_s.sum())) / n + reconciled.parallel_s,
+        parallel_s=float(history_s[-1]),
         iterations=int(episode.step_s.size),
         history=history,
+        history_s=history_s,
         inlier_mask=episode.inlier_mask,
         messages=reconciled.messages,
         extras={
@@ -235,6 +242,10 @@ def solve_prop_v2(
     refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations)
     lm_s = time.perf_counter() - started
     costs = objective.evaluate(problem.graph, refined.poses)
+    history_s = None
+    if first.history_s is not None:  # the last entry is the returned estimate, at parallel_s
+        history_s = np.concatenate([first.history_s, first.parallel_s + refined.history_s[1:]])
+        history_s[-1] = first.parallel_s + lm_s
     return Result(
         poses=refined.poses,
         **costs._asdict(),  # F, F_chordal, chi2
@@ -242,6 +253,7 @@ def solve_prop_v2(
         parallel_s=first.parallel_s + lm_s,
         iterations=first.iterations + int(refined.iterations),
         history=np.concatenate([first.history, refined.history[1:]]),
+        history_s=history_s,
         inlier_mask=first.inlier_mask,
         messages=first.messages,
         extras={

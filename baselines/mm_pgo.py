@@ -791,7 +791,8 @@ def solve(
     iterations of the separator poses sent, one per (pose, neighbouring robot) pair.
     ``extras["refactorisations"]`` counts the refreshes of ``H`` after the set-up. ``history[k]`` =
     ``F_chordal(X_k)`` (``history[0]`` at the start), read off the edge residuals the iteration
-    computes anyway (no extra evaluation).
+    computes anyway (no extra evaluation); ``history_s[k]`` = ``parallel_s`` after the set-up and
+    ``k`` iterations (its last entry ``parallel_s``).
     """
     del seed
     start = time.perf_counter()
@@ -815,7 +816,7 @@ def solve(
     parallel_s = (time.perf_counter() - tic) * team.slowest_share
     costs = edge_costs(terms, kappa, tau)
     previous = poses
-    history = []
+    history, history_s = [], []
     state = RestartState()
     best, best_objective = poses, np.inf  # the lowest-F iterate (kernel "none")
     iterations = weight_updates = hard_restarts = soft_restarts = refactorisations = 0
@@ -836,6 +837,7 @@ def solve(
         history.append(
             objective_now if kernel == "none" else float(edge_costs(terms, kappa, tau).sum())
         )
+        history_s.append(parallel_s)
         if kernel == "none" and objective_now < best_objective:
             best, best_objective = poses, objective_now
         if hessian_interval > 0 and iterations % hessian_interval == 0:
@@ -871,6 +873,7 @@ def solve(
     poses = to_frame_of(poses.poses, reference, start_poses[reference])
     costs = objective.evaluate(graph, poses)
     history.append(costs.F_chordal)
+    history_s.append(parallel_s)
     extras: dict[str, object] = {
         "init": problem.start,
         "kernel": kernel,
@@ -880,7 +883,6 @@ def solve(
         "soft_restarts": soft_restarts,
         "weight_updates": weight_updates,
         "refactorisations": refactorisations,
-        "history_objective": "F_chordal",
         "parallel_model": "batched time × slowest robot's share of poses + local edges",
     }
     inlier_mask = None
@@ -902,4 +904,6 @@ def solve(
         inlier_mask=inlier_mask,
         messages=team.messages_per_iteration * iterations,
         extras=extras,
+        history_s=np.asarray(history_s),
+        history_objective="F_chordal",
     )

@@ -745,7 +745,8 @@ class RBCDOptions:
 class RBCDRun:
     """The outcome of :func:`run_rbcd`: the best ``x`` seen ``(N, 3, r)``, ``history`` (``2f`` per
     round, first entry the start), rounds run, simulated makespan [s], separator poses sent,
-    momentum restarts."""
+    momentum restarts, and ``history_s``: the makespan [s] at each ``history`` entry (0 first,
+    ``parallel_s`` last)."""
 
     x: np.ndarray
     history: np.ndarray
@@ -753,6 +754,7 @@ class RBCDRun:
     parallel_s: float
     messages: int
     restarts: int
+    history_s: np.ndarray
 
 
 class _Update(NamedTuple):
@@ -849,7 +851,7 @@ def run_rbcd(
     every robot whose estimate changed that round (all robots in an accelerated round, the updated
     class in a plain one). ``history[k]`` = ``2 f(X_k)``, the relaxation's F_chordal after round
     ``k`` (``history[0]`` at the start); the rounded estimate's F / F_chordal are evaluated once,
-    at the end.
+    at the end. ``history_s[k]`` = ``parallel_s`` after round ``k``.
     """
     start = time.perf_counter()
     rounds = _Rounds(batches, options)
@@ -858,7 +860,7 @@ def run_rbcd(
     x, q_x = x0, apply_q(q, x0)
     cost = relaxed_cost(x, q_x) if initial_cost is None else initial_cost
     v, gamma = x, 0.0
-    history = [2.0 * cost]
+    history, history_s = [2.0 * cost], [0.0]
     best_x, best_cost = x, cost
     parallel_s, messages, restarts, iteration = 0.0, 0, 0, 0
     while iteration < budget.iterations:
@@ -900,7 +902,16 @@ def run_rbcd(
         budget.round_done(iteration)
         shared_s = time.perf_counter() - round_start - robots_s
         parallel_s += slowest_s + shared_s / num_robots
-    return RBCDRun(best_x, np.asarray(history), iteration, parallel_s, messages, restarts)
+        history_s.append(parallel_s)
+    return RBCDRun(
+        best_x,
+        np.asarray(history),
+        iteration,
+        parallel_s,
+        messages,
+        restarts,
+        np.asarray(history_s),
+    )
 
 
 # ----- the method: initialise, iterate, round, report --------------------------------------------
@@ -931,7 +942,8 @@ def solve_rbcd(
         The :class:`~popbench.methods.Result`; ``history`` holds the relaxation's ``2f``
         (F_chordal of the rank-r iterate) per round, ``F``/``F_chordal``/``chi2`` are those of
         the rounded poses. ``parallel_s`` includes the lifting of the start and
-        ``1/n`` of the setup (Q, blocks, factorisations, which each robot does for itself).
+        ``1/n`` of the setup (Q, blocks, factorisations, which each robot does for itself);
+        ``history_s`` is that set-up time plus the rounds' makespan so far (last: ``parallel_s``).
     """
     if rank < 2:
         raise ValueRangeError("rank", rank, "an integer ≥ 2")
@@ -948,6 +960,7 @@ def solve_rbcd(
     batches = [class_blocks(q, graph, robots, group, shift) for group in groups]
     num_robots = int(robots.max()) + 1
     setup_s = time.perf_counter() - initialised
+    setup_parallel_s = (initialised - start) + setup_s / num_robots
     start_gradient = float(np.sqrt(pose_gradient_norms(x0, apply_q(q, x0)).sum()))
     run_options = scaled_local_options(options, start_gradient)
     run = run_rbcd(q, batches, num_robots, x0, budget, run_options, edge_relaxed_cost(graph, x0))
@@ -971,9 +984,11 @@ def solve_rbcd(
         poses=poses,
         **costs._asdict(),  # F, F_chordal, chi2
         wall_s=wall_s,
-        parallel_s=(initialised - start) + setup_s / num_robots + run.parallel_s,
+        parallel_s=setup_parallel_s + run.parallel_s,
         iterations=run.iterations,
         history=run.history,
         messages=run.messages,
         extras=extras,
+        history_s=setup_parallel_s + run.history_s,
+        history_objective="F_chordal",
     )

@@ -57,7 +57,13 @@ class Result:
         parallel_s: simulated makespan [s]: per round, the slowest robot's compute, plus
             consensus/communication rounds.
         iterations: rounds run.
-        history: ``F`` after each round (``(iterations + 1,)``, the first entry the start).
+        history: the objective ``history_objective`` after each round (``(K,)``, the first
+            entry the start; ``K = iterations + 1`` unless the method documents its rounds).
+        history_s: ``(K,)`` simulated parallel time [s] at each ``history`` entry, cumulative
+            (the first entry the set-up counted in ``parallel_s``, the last ``parallel_s``), or
+            None where the method does not record it (the convergence profiles,
+            :mod:`popbench.harness.profiles`).
+        history_objective: what ``history`` holds: ``"F"`` (eq. 1) or ``"F_chordal"``.
         inlier_mask: ``(M,)`` bool, False where the method flags an edge as an outlier, or None.
         messages: poses exchanged between robots over the run.
         extras: method-specific figures (certificate, restarts, ...).
@@ -74,6 +80,8 @@ class Result:
     inlier_mask: np.ndarray | None = None
     messages: int = 0
     extras: dict[str, Any] = dataclasses.field(default_factory=dict)
+    history_s: np.ndarray | None = None
+    history_objective: str = "F"
 
 
 Method = Callable[..., Result]

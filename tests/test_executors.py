@@ -25,9 +25,10 @@ from popbench.harness.executors import (
     make_executor,
     run_cell,
 )
+from popbench.harness.profiles import GAP_COLUMNS
 from popbench.threads import limited_threads, thread_environment
 
-TIME_COLUMNS = ("wall_s", "parallel_s")
+TIME_COLUMNS = ("wall_s", "parallel_s", *GAP_COLUMNS)
 
 
 def _quick(out: Path, execution: Execution) -> pd.DataFrame:

@@ -80,8 +80,9 @@ def table1_command(
     """The paper's Table I: datasets × robots × methods, with F* and the gap F/F* − 1.
 
     Writes OUT/table1.csv (one row per cell), table1.md, table1.tex (ours beside the paper's
-    numbers) and table1.png/.pdf. Every dataset is loaded and every team size checked before
-    anything is computed.
+    numbers), table1.png/.pdf and one convergence profile per dataset, profile-DATASET-nN.png/.pdf
+    (relative gap against parallel time, n = 7 or the largest team). Every dataset is loaded
+    and every team size checked before anything is computed.
     """
     from popbench.harness.table1 import Table1Config, run_table1
 
@@ -106,7 +107,7 @@ def table1_command(
     )
     typer.echo(
         f"{len(frame)} cells -> {config.out}/table1.csv, table1.md, table1.tex, "
-        "table1.png, table1.pdf"
+        "table1.png, table1.pdf, profile-*.png/.pdf"
     )
 
 

@@ -9,9 +9,9 @@ row. A changed input file, code or checkpoint therefore gives a new key and the 
 recomputed; the old file is left in the folder, unused.
 
 A cell of a method that another refines (:mod:`popbench.harness.refining`) also keeps its whole
-:class:`~popbench.methods.Result` in ``<key>.result.npz`` (poses, history, inlier mask, and the
-scalars and extras as JSON), which the refiner's cell starts from; the refiner's ``wall_s`` and
-``parallel_s`` are the refined method's cached times plus the refinement's own.
+:class:`~popbench.methods.Result` in ``<key>.result.npz`` (poses, history and its times, inlier
+mask, and the scalars and extras as JSON), which the refiner's cell starts from; the refiner's
+``wall_s`` and ``parallel_s`` are the refined method's cached times plus the refinement's own.
 """
 
 from __future__ import annotations
@@ -182,9 +182,11 @@ class CellCache:
                 "messages",
             )
         }
+        scalars["history_objective"] = result.history_objective
         arrays = {"poses": result.poses, "history": result.history}
-        if result.inlier_mask is not None:
-            arrays["inlier_mask"] = result.inlier_mask
+        for name in ("inlier_mask", "history_s"):
+            if getattr(result, name) is not None:
+                arrays[name] = getattr(result, name)
         meta = json.dumps({"scalars": scalars, "extras": result.extras}, default=float)
         np.savez(temporary, **arrays, meta=np.array(meta))
         os.replace(temporary, path)
@@ -200,11 +202,14 @@ class CellCache:
         try:
             with np.load(path) as stored:
                 meta = json.loads(str(stored["meta"]))
-                mask = stored["inlier_mask"] if "inlier_mask" in stored.files else None
+                optional = {
+                    name: stored[name] if name in stored.files else None
+                    for name in ("inlier_mask", "history_s")
+                }
                 return Result(
                     poses=stored["poses"],
                     history=stored["history"],
-                    inlier_mask=mask,
+                    **optional,
                     extras=meta["extras"],
                     **meta["scalars"],
                 )

@@ -48,6 +48,11 @@ def optimum(dataset: str) -> float:
     return _optimum(dataset, _sha(dataset))
 
 
+def chordal_optimum(dataset: str) -> float:
+    """F_chordal* of a dataset (:func:`popbench.solvers.lm.chordal_optimum`)."""
+    return _chordal_optimum(dataset, _sha(dataset))
+
+
 def check_inputs(names: Iterable[str], robots: Iterable[int], option: str = "--robots") -> None:
     """Before anything is computed: load every dataset with the loader the cells use (raising
     its one-line DatasetError or DataFormatError) and check that every team size is at most
@@ -82,3 +87,10 @@ def _optimum(dataset: str, sha256: str | None) -> float:
     from popbench.solvers.lm import reference_optimum
 
     return float(reference_optimum(_load_graph(dataset, sha256)).F)
+
+
+@lru_cache(maxsize=16)
+def _chordal_optimum(dataset: str, sha256: str | None) -> float:
+    from popbench.solvers.lm import chordal_optimum
+
+    return chordal_optimum(_load_graph(dataset, sha256))

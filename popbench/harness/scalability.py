@@ -17,6 +17,7 @@ from popbench.harness.cache import provenance
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.plotting import pyplot, save_figure
+from popbench.harness.profiles import HISTORY_FIELDS
 from popbench.harness.runner import Spec, run_experiment
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
@@ -73,7 +74,7 @@ def run_scalability(
         everything, table1.compute, config.out, execution=execution, progress=progress, fresh=fresh
     )
     optimum = computed[0]["F_star"]
-    frame = pd.DataFrame(computed[1:])
+    frame = pd.DataFrame(computed[1:]).drop(columns=list(HISTORY_FIELDS), errors="ignore")
     frame["F_star"] = optimum
     frame["gap"] = frame["F"] / optimum - 1.0
     config.out.mkdir(parents=True, exist_ok=True)

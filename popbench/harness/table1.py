@@ -3,7 +3,9 @@
 Every method starts from the same initial estimate (``init``, default the odometry composition,
 the standard hard start) and runs ``iterations`` rounds (the paper: 1000 for the baselines); the
 learned methods run their own fixed schedule. F* is the best F of the project's LM from chordal
-initialisation, and ``gap = F / F* − 1``.
+initialisation, and ``gap = F / F* − 1``. Each cell's row carries its history and the parallel
+time of each entry, from which the times to a relative gap of 1e-1, 1e-2 and 1e-3 are read
+(:mod:`popbench.harness.profiles`).
 """
 
 from __future__ import annotations
@@ -16,11 +18,12 @@ from typing import Any
 import pandas as pd
 
 from popbench.distributed import DistributedProblem
-from popbench.harness import problems, reports
+from popbench.harness import problems, profiles, reports
 from popbench.harness.cache import provenance
 from popbench.harness.executors import Execution
 from popbench.harness.manifest import write_manifest
 from popbench.harness.paper import paper_table1_cell
+from popbench.harness.profiles import GAP_COLUMNS
 from popbench.harness.refining import refined_spec, solve_cell
 from popbench.harness.runner import Spec, run_experiment
 from popbench.methods import Budget, Result, distributed_methods
@@ -87,6 +90,7 @@ def compute_optimum(spec: Spec) -> dict[str, Any]:
     return {
         "dataset": spec["dataset"],
         "F_star": problems.optimum(spec["dataset"]),
+        "F_chordal_star": problems.chordal_optimum(spec["dataset"]),
         "wall_s": time.perf_counter() - start,
     }
 
@@ -125,6 +129,10 @@ def cell_row(spec: Spec, problem: DistributedProblem, result: Result) -> dict[st
         "parallel_s": result.parallel_s,
         "iterations": result.iterations,
         "messages": result.messages,
+        # the convergence profile (popbench.harness.profiles.HISTORY_FIELDS)
+        "history": result.history.tolist(),
+        "history_s": None if result.history_s is None else result.history_s.tolist(),
+        "history_objective": result.history_objective,
     }
 
 
@@ -136,9 +144,10 @@ def run_table1(
     execution: Execution | None = None,
 ) -> pd.DataFrame:
     """Compute (or reuse; all recomputed if ``fresh``) every cell, then write ``table1.csv``,
-    ``table1.md``, ``table1.tex``, ``table1.png``/``.pdf`` and ``manifest.json`` into
-    ``config.out``. The optima and the cells run together through ``execution`` (default:
-    serially in this process).
+    ``table1.md``, ``table1.tex``, ``table1.png``/``.pdf``, the convergence profiles
+    ``profile-DATASET-nN.png``/``.pdf`` (:mod:`popbench.harness.profiles`) and
+    ``manifest.json`` into ``config.out``. The optima and the cells run together through
+    ``execution`` (default: serially in this process).
 
     Every dataset is loaded and every team size checked against its poses before anything is
     computed (:func:`popbench.harness.problems.check_inputs`).
@@ -156,11 +165,15 @@ def run_table1(
         fresh=fresh,
         depends=refined_spec,
     )
-    optima = {row["dataset"]: row["F_star"] for row in computed[: len(config.datasets)]}
+    optima = {row["dataset"]: row for row in computed[: len(config.datasets)]}
     rows = computed[len(config.datasets) :]
     frame = pd.DataFrame(rows)
-    frame["F_star"] = frame["dataset"].map(optima)
+    frame["F_star"] = frame["dataset"].map(lambda dataset: optima[dataset]["F_star"])
     frame["gap"] = frame["F"] / frame["F_star"] - 1.0
+    frame["F_chordal_star"] = frame["dataset"].map(
+        lambda dataset: optima[dataset].get("F_chordal_star", float("nan"))
+    )
+    frame = pd.concat([frame, profiles.time_to_gap_columns(rows, optima)], axis=1)
     paper = [
         paper_table1_cell(d, n, m)
         for d, n, m in zip(frame["dataset"], frame["robots"], frame["method"], strict=True)
@@ -178,6 +191,7 @@ def run_table1(
         "F_chordal",
         "chi2",
         "F_star",
+        "F_chordal_star",
         "gap",
         "wall_s",
         "parallel_s",
@@ -186,6 +200,7 @@ def run_table1(
         "seed",
         "paper_F",
         "paper_time_s",
+        *GAP_COLUMNS,
     ]
     frame = frame[columns]
     config.out.mkdir(parents=True, exist_ok=True)
@@ -193,5 +208,6 @@ def run_table1(
     (config.out / "table1.md").write_text(reports.table1_markdown(frame))
     (config.out / "table1.tex").write_text(reports.table1_latex(frame))
     reports.table1_figure(frame, config.out / "table1")
+    profiles.profile_figures(rows, optima, config.out)
     write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame

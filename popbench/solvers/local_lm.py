@@ -71,7 +71,8 @@ def solve(
 
     Result: ``iterations`` = 1 (one local solve per robot); ``history`` = F at the start, of the
     assembled local optima, and after the consensus; ``parallel_s`` = the slowest robot's LM
-    plus the consensus's simulated makespan; ``extras``: F_local, F_aligned and the consensus's
+    plus the consensus's simulated makespan; ``history_s`` = 0, the slowest robot's LM, and
+    ``parallel_s``; ``extras``: F_local, F_aligned and the consensus's
     iterations.
     """
     del budget
@@ -80,15 +81,17 @@ def solve(
     graph = problem.graph
     f_init = objective.objective(graph, graph.poses)
     local_poses, seconds = local_optima(problem, local_iterations)
+    local_s = float(seconds.max(initial=0.0))
     reconciled = reconcile(problem, local_poses, consensus, consensus_iterations)
     costs = objective.evaluate(graph, reconciled.poses)
     return Result(
         poses=reconciled.poses,
         **costs._asdict(),  # F, F_chordal, chi2
         wall_s=time.perf_counter() - started,
-        parallel_s=float(seconds.max(initial=0.0)) + reconciled.parallel_s,
+        parallel_s=local_s + reconciled.parallel_s,
         iterations=1,
         history=np.array([f_init, reconciled.F_before, costs.F]),
+        history_s=np.array([0.0, local_s, local_s + reconciled.parallel_s]),
         messages=reconciled.messages,
         extras={
             "F_init": f_init,
