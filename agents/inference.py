@@ -44,6 +44,14 @@ from agents.actor import HybridActor, masked_log_softmax
 from agents.encoder import INTER_LOOP_COLUMN, LOG_INFO_COLUMNS, GraphBatch, edge_embeddings
 
 
+def _members(ids: Tensor, size: int) -> Tensor:
+    """The ascending unique values of `ids` (any shape, long) below `size` (= torch.unique of
+    them, by a membership mask: O(size) instead of a sort)."""
+    member = torch.zeros(size + 1, dtype=torch.bool)
+    member[ids.clamp(max=size).flatten()] = True
+    return torch.nonzero(member[:size]).squeeze(-1)
+
+
 class IncrementalPolicy:
     """Deterministic `HybridActor` with cached per-layer state over G fixed-topology graphs.
 
@@ -130,20 +138,19 @@ class IncrementalPolicy:
     # -- cache maintenance -----------------------------------------------------------------------
 
     def _edges_at(self, vertices: Tensor) -> Tensor:
-        """Unique flat ids of the real edges incident to `vertices`."""
-        edges = torch.unique(self.incident[vertices])
-        return edges[edges < self.valid.shape[0] - 1]
+        """Ascending unique flat ids of the real edges incident to `vertices`."""
+        return _members(self.incident[vertices], self.valid.shape[0] - 1)
 
     @torch.no_grad()
     def _propagate(self, changed: Tensor, first_edges: Tensor) -> None:
         """Recompute the caches after the features of `changed` vertices and the residuals of
         `first_edges` changed (both flat ids)."""
-        n_nodes = self.h[0].shape[0] - 1
+        n_nodes, n_edges = self.h[0].shape[0] - 1, self.valid.shape[0] - 1
         encoder = self.actor.encoder
         vertices = changed
         for layer, (conv, gate) in enumerate(zip(encoder.convs, encoder.gates, strict=True)):
             # Residuals feed every layer's gate: the edges of `first_edges` are refreshed too.
-            edges = torch.unique(torch.cat([self._edges_at(vertices), first_edges]))
+            edges = _members(torch.cat([self._edges_at(vertices), first_edges]), n_edges)
             self.bases[layer][vertices] = conv.bases(self.h[layer][vertices])
             shape = (-1, conv.num_bases, conv.out_dim)
             forward_coeff, reverse_coeff = self.coefficients[layer]
@@ -167,7 +174,7 @@ class IncrementalPolicy:
                 * self.valid[edges]
             )
             ends = torch.cat([vertices, self.tails[edges], self.heads[edges]])
-            vertices = torch.unique(ends[ends < n_nodes])
+            vertices = _members(ends, n_nodes)
             updated = self._node_update(layer, conv, vertices)
             if layer == len(encoder.convs) - 1:  # masked sum behind the mean-pooled latent
                 change = (updated - self.h[-1][vertices]) * self.node_weight[vertices, None]
@@ -283,18 +290,18 @@ class IncrementalPolicy:
         self.residuals[edges] = residuals
         self._propagate(moved, edges)
 
-    def observe_step(self, before: dict[str, Tensor], after: dict[str, Tensor]) -> None:
-        """Apply what a step changed, read off the observations before and after it (one batch
-        element: node_features [G, V, d_v], residuals [G, E, 3]); right in every environment
-        mode — one moved pose, a moved subtree whose boundary edges change, or a robot whose
-        frame vertex moved."""
-        features, residuals = after["node_features"], after["residuals"]
-        moved = torch.nonzero((features != before["node_features"]).any(-1).flatten())
-        changed = torch.nonzero((residuals != before["residuals"]).any(-1).flatten())
-        moved, changed = moved.squeeze(-1), changed.squeeze(-1)
-        self.observe(
-            moved, features.flatten(0, 1)[moved], changed, residuals.flatten(0, 1)[changed]
-        )
+    def observe_update(
+        self, vertices: Tensor, features: Tensor, edges: Tensor, residuals: Tensor
+    ) -> None:
+        """Apply what a step changed, given the entries it may have changed
+        (envs.core.PGOCore.observation_update: ascending flat vertex ids [S] with their node
+        features [S, d_v], ascending flat edge ids [R] with their residuals [R, 3]): only those
+        that differ from the cached ones are propagated — right in every environment mode (one
+        moved pose, a moved subtree whose boundary edges change, or a robot whose frame vertex
+        moved)."""
+        moved = (features != self.h[0][vertices]).any(-1)
+        changed = (residuals != self.residuals[edges]).any(-1)
+        self.observe(vertices[moved], features[moved], edges[changed], residuals[changed])
 
     def inliers(self, threshold: float = 0.5) -> Tensor:
         """[G, E] bool: layer-averaged gate > threshold (encoder.Encoding.inliers)."""

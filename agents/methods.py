@@ -139,9 +139,7 @@ def run_episode(
         tick = time.perf_counter()
         edge, delta = policy.act(core.action_mask()[0])
         core.step(edge.view(1, n), delta.view(1, n, 3))
-        after = {key: value[0] for key, value in core.observation().items()}
-        policy.observe_step(observation, after)
-        observation = after
+        policy.observe_update(*core.observation_update())
         step_s.append(time.perf_counter() - tick)
         history.append(copies_objective())
         if on_step is not None:

@@ -1,8 +1,8 @@
 """prop-v1 inference speed (issue 5, item 7) and prop-v1 vs mm-pgo on city10k.
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_prop.py
-    (options: --sizes 60,250,1000,2500,10000 --steps 100 --full-steps 5 --skip-city
-     --checkpoint PATH --threads 1)
+    (options: --sizes 60,250,1000,2500,10000 (--sizes '' skips part 1) --steps 100
+     --full-steps 5 --skip-city --checkpoint PATH --threads 1)
 
 Part 1 — per-step time against the local graph size. One robot, synthetic V2 local graphs of
 P poses (P from 60 to 10,000; ≈ 1.15·P edges). For each P: the median wall time of one prop-v1
@@ -15,7 +15,11 @@ ratio full / incremental.
 Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + ADMM consensus) and
 mm-pgo's 1000 iterations (baselines.mm_pgo.solve, from the same odometry start), with
 F, wall and simulated parallel time, the wall-time ratio mm-pgo / prop-v1 and prop-v1's split of
-its wall time (actor episode / ADMM consensus).
+its wall time: the actor episode (the actor's decisions, IncrementalPolicy.act; the environment
+step, PGOCore.step, of which the Gauss–Newton base step, envs.sweep.gauss_newton_delta; the
+incremental observation, PGOCore.observation_update + IncrementalPolicy.observe_update) and the
+consensus (of which SuperLU's factorisations, splu in popbench.consensus_system), measured by
+wrapping those functions with timers for the run.
 
 The actor is the committed n = 7 checkpoint (agents/checkpoints/actor-V2-n7.pt); without it, a
 randomly initialised actor of the cpu-small preset's size (timings do not depend on training).
@@ -24,9 +28,13 @@ randomly initialised actor of the cpu-small preset's size (timings do not depend
 from __future__ import annotations
 
 import argparse
+import contextlib
+import importlib
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -91,6 +99,45 @@ def per_step_table(actor: HybridActor, sizes: list[int], steps: int, full_steps:
         )
 
 
+PHASES = (
+    ("actor: decisions (act)", "agents.inference", "IncrementalPolicy.act"),
+    ("actor: observation update", "agents.inference", "IncrementalPolicy.observe_update"),
+    ("actor: observation update", "envs.core", "PGOCore.observation_update"),
+    ("env step (PGOCore.step)", "envs.core", "PGOCore.step"),
+    ("  of which Gauss–Newton base", "envs.sweep", "gauss_newton_delta"),
+    ("consensus: SuperLU splu", "popbench.consensus_system", "splu"),
+)
+
+
+@contextlib.contextmanager
+def phase_timers() -> Iterator[dict[str, float]]:
+    """Wrap the functions of :data:`PHASES` with timers while the block runs; yields the
+    seconds spent per phase label (summed over calls)."""
+    spent: dict[str, float] = dict.fromkeys((label for label, _, _ in PHASES), 0.0)
+    restore = []
+    for label, module_name, name in PHASES:
+        owner: Any = importlib.import_module(module_name)
+        *path, attribute = name.split(".")
+        for part in path:
+            owner = getattr(owner, part)
+        original = getattr(owner, attribute)
+
+        def timed(*args, _original=original, _label=label, **kwargs):
+            tic = time.perf_counter()
+            try:
+                return _original(*args, **kwargs)
+            finally:
+                spent[_label] += time.perf_counter() - tic
+
+        setattr(owner, attribute, timed)
+        restore.append((owner, attribute, original))
+    try:
+        yield spent
+    finally:
+        for owner, attribute, original in restore:
+            setattr(owner, attribute, original)
+
+
 def city_comparison(robots: int, checkpoint: Path) -> None:
     from baselines import mm_pgo
     from envs import dataset_problem
@@ -98,21 +145,26 @@ def city_comparison(robots: int, checkpoint: Path) -> None:
     problem = dataset_problem("city10k", robots)
     print(f"\ncity10k, n = {robots}, odometry start (F = {problem_f(problem):.4g})")
     print(f"{'method':>22} {'F':>12} {'wall s':>9} {'parallel s':>11} {'iterations':>11}")
-    prop = solve_prop_v1(problem, Budget(), checkpoint=checkpoint)
+    with phase_timers() as spent:
+        prop = solve_prop_v1(problem, Budget(), checkpoint=checkpoint)
     mm = mm_pgo.solve(problem, Budget(1000))
     for name, result in (("prop-v1", prop), ("mm-pgo (1000 it.)", mm)):
         print(
-            f"{name:>22} {result.F:>12.6g} {result.wall_s:>9.2f} {result.parallel_s:>11.2f} "
+            f"{name:>22} {result.F:>12.10g} {result.wall_s:>9.2f} {result.parallel_s:>11.2f} "
             f"{result.iterations:>11}"
         )
     print(
-        f"wall-time ratio mm-pgo / prop-v1 = {mm.wall_s / prop.wall_s:.2f}; "
-        f"parallel-time ratio = {mm.parallel_s / prop.parallel_s:.2f}; "
-        f"prop-v1 split: actor {prop.extras['actor_s']:.2f} s (steps mean "
-        f"{prop.extras['step_ms_mean']:.2f} ms), consensus {prop.extras['consensus_s']:.2f} s; "
+        f"wall-time ratio prop-v1 / mm-pgo = {prop.wall_s / mm.wall_s:.2f}; "
+        f"parallel-time ratio = {prop.parallel_s / mm.parallel_s:.2f}; "
         f"consensus iterations {prop.extras['consensus_iterations']}, "
         f"F after the actor (before consensus) {prop.extras['F_actor']:.6g}"
     )
+    print(f"\nprop-v1 profile split (wall {prop.wall_s:.2f} s)")
+    print(f"{'actor episode (setup + steps)':>32} {prop.extras['actor_s']:>8.2f} s")
+    print(f"{'  steps, mean':>32} {prop.extras['step_ms_mean']:>8.2f} ms")
+    for label, seconds in spent.items():
+        print(f"{label:>32} {seconds:>8.2f} s")
+    print(f"{'consensus (alignment + ADMM)':>32} {prop.extras['consensus_s']:>8.2f} s")
 
 
 def problem_f(problem) -> float:
@@ -134,7 +186,9 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     actor, checkpoint = actor_for(args.checkpoint)
     print(f"actor: {checkpoint}; torch threads: {args.threads}")
-    per_step_table(actor, [int(s) for s in args.sizes.split(",")], args.steps, args.full_steps)
+    sizes = [int(size) for size in args.sizes.split(",") if size]
+    if sizes:
+        per_step_table(actor, sizes, args.steps, args.full_steps)
     if not args.skip_city:
         city_comparison(args.robots, checkpoint)
 

@@ -215,6 +215,9 @@ class PGOCore:
         )
         self.problems: list[DistributedProblem | None] = [None] * batch
         self.tensors: dict[str, torch.Tensor] = {}
+        #: what the last step rewrote: vertices ``(B·n, V+1)`` and edge slots ``(B·n, E+1)``
+        self.last_moved: torch.Tensor | None = None
+        self.last_refreshed: torch.Tensor | None = None
 
     # -- episode start ---------------------------------------------------------------------------
 
@@ -338,13 +341,18 @@ class PGOCore:
         if self.correction == "subtree":
             moved, inside = self.subtree_move(poses, flat_edge, clipped)
             poses.copy_(moved)
-            change = self._refresh_boundary(inside)
+            change, refreshed = self._refresh_boundary(inside)
         else:
             x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
             moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
             _scatter_rows(poses, head, moved)
             incident = _gather_rows(t["incident"].view(g, -1, self.dims.degree), head).squeeze(1)
             change = self._refresh_edges(incident)
+            inside = torch.zeros(poses.shape[:2], dtype=torch.bool, device=self.device)
+            inside.scatter_(1, head, True)
+            refreshed = torch.zeros(g, e + 1, dtype=torch.bool, device=self.device)
+            refreshed.scatter_(1, incident, True)
+        self.last_moved, self.last_refreshed = inside, refreshed
 
         processed = t["processed"].view(g, -1)
         processed.scatter_(1, flat_edge, True)
@@ -401,9 +409,10 @@ class PGOCore:
         moved = torch.where(inside.unsqueeze(-1), compose(transform, poses), poses)
         return moved, inside
 
-    def _refresh_boundary(self, inside: torch.Tensor) -> torch.Tensor:
+    def _refresh_boundary(self, inside: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Recompute residuals and target costs of the edges with exactly one endpoint in the
-        moved subtree ``inside (G, V+1)``; return the change of ``L`` per agent, ``(G,)``."""
+        moved subtree ``inside (G, V+1)``; return the change of ``L`` per agent, ``(G,)``, and
+        those edges, ``(G, E+1)`` bool."""
         t = self.tensors
         g = inside.shape[0]
         poses = t["poses"].view(g, -1, 3)
@@ -421,7 +430,7 @@ class PGOCore:
         old_r = t["residuals"].view(g, -1, 3)
         old_r.copy_(torch.where(crossing.unsqueeze(-1), r, old_r))
         costs.copy_(torch.where(crossing, cost, costs))
-        return change
+        return change, crossing
 
     def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:
         """Recompute residuals and target costs of the edge slots ``incident (G, D)`` in place;
@@ -476,6 +485,47 @@ class PGOCore:
             "processed": t["processed"][..., :e].clone(),
             "residuals": self._observed_residuals().to(torch.float32),
         }
+
+    def observation_update(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """What the last :meth:`step` may have changed in :meth:`observation`, for an
+        incremental reader (:class:`agents.inference.IncrementalPolicy`): every entry whose
+        value can differ is included (some may be unchanged), every other entry is unchanged.
+
+        Returns:
+            vertices ``(S,)`` flat ids ``(b·n + agent)·V + local`` (ascending): the vertices
+            the step moved and those whose frame vertex it moved; their ``node_features``
+            ``(S, 6)`` float32; edges ``(R,)`` flat ids ``(b·n + agent)·E + slot``
+            (ascending): the edges whose residual it recomputed; their observed ``residuals``
+            ``(R, 3)`` float32 (as :meth:`observation` gives them).
+        """
+        if self.last_moved is None or self.last_refreshed is None:
+            raise RuntimeError("observation_update before the first step")
+        t = self.tensors
+        v, e = self.dims.vertices, self.dims.edges
+        g = self.batch * self.num_agents
+        moved = self.last_moved[:, :v]
+        if self.observation_mode == "invariant":
+            frame_index = t["tree_parent"].view(g, -1)[:, :v]
+        else:
+            frame_index = torch.zeros_like(moved, dtype=torch.int64)
+        candidate = (moved | torch.gather(moved, 1, frame_index)) & t["node_mask"].view(g, v)
+        vertices = torch.nonzero(candidate.flatten()).squeeze(-1)
+        graph = vertices // v
+        poses = t["poses"].view(-1, 3)  # (G·(V+1), 3): each graph's rows and its trash vertex
+        frames = frame_index.flatten()[vertices] + graph * (v + 1)
+        features = node_features(
+            poses[frames],
+            poses[vertices + graph],
+            t["log_degree"].flatten()[vertices],
+            t["owned"].flatten()[vertices],
+            t["node_mask"].flatten()[vertices],
+        )
+        edges = torch.nonzero(self.last_refreshed[:, :e].flatten()).squeeze(-1)
+        r = t["residuals"][..., :e, :].reshape(g * e, 3)[edges]
+        if self.action_scale == "whitened":
+            root = t["sqrt_information"][..., :e, :, :].reshape(g * e, 3, 3)[edges]
+            r = (root @ r.unsqueeze(-1)).squeeze(-1)
+        return vertices, features, edges, r.to(torch.float32)
 
     def _observed_residuals(self) -> torch.Tensor:
         """``(B, n, E, 3)`` residuals as observed: metric, or ``Λ^½ r`` when whitened."""

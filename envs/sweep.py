@@ -54,10 +54,11 @@ def gauss_newton_delta(core: PGOCore, edge: torch.Tensor) -> torch.Tensor:
     probes = torch.cat(
         [torch.zeros(1, 3, dtype=core.dtype), STEP * torch.eye(3, dtype=core.dtype)]
     ).to(core.device)  # (4, 3): Δ = 0 and the three unit steps
+    whitening = _whitening(core)
     errors = []
     for probe in probes:  # four evaluations, each vectorised over every agent and edge
         moved, _ = core.subtree_move(poses, flat_edge, probe.expand(g, 1, 3))
-        errors.append(_whitened_errors(core, moved).flatten(1))
+        errors.append(_whitened_errors(core, moved, whitening).flatten(1))
     e0 = errors[0]
     jacobian = torch.stack([(value - e0) / STEP for value in errors[1:]], -1)  # (G, 3E', 3)
     normal = jacobian.transpose(1, 2) @ jacobian
@@ -76,13 +77,20 @@ def gauss_newton_delta(core: PGOCore, edge: torch.Tensor) -> torch.Tensor:
     return step.view(core.batch, core.num_agents, 3)
 
 
-def _whitened_errors(core: PGOCore, poses: torch.Tensor) -> torch.Tensor:
-    """``(G, E+1, 3)`` ``[√τ r_t, √κ r_θ]`` of every edge slot against the measurements."""
+def _whitening(core: PGOCore) -> torch.Tensor:
+    """``(G, E+1, 3)`` ``[√τ, √τ, √κ]`` of every edge slot (the residuals' whitening)."""
+    t = core.tensors
+    g = core.batch * core.num_agents
+    return torch.stack([t["tau"].view(g, -1).sqrt()] * 2 + [t["kappa"].view(g, -1).sqrt()], -1)
+
+
+def _whitened_errors(core: PGOCore, poses: torch.Tensor, whitening: torch.Tensor) -> torch.Tensor:
+    """``(G, E+1, 3)`` ``[√τ r_t, √κ r_θ]`` of every edge slot against the measurements
+    (``whitening``: :func:`_whitening`)."""
     t = core.tensors
     g = poses.shape[0]
     tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
     r = residuals(
         _gather_rows(poses, tails), _gather_rows(poses, heads), t["measurements"].view(g, -1, 3)
     )
-    scale = torch.stack([t["tau"].view(g, -1).sqrt()] * 2 + [t["kappa"].view(g, -1).sqrt()], -1)
-    return r * scale
+    return r * whitening

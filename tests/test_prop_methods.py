@@ -110,9 +110,8 @@ def test_incremental_inference_equals_full_forward(problem, modes: dict) -> None
             torch.testing.assert_close(delta, reference.delta, atol=1e-5, rtol=1e-4)
             memory, prev_edge, prev_delta = reference.memory, reference.edge_weights, delta
             reframes += int((t["heads"][0][rows, edge] == 0).sum())
-            before = observation()
             core.step(edge.view(1, n), delta.view(1, n, 3))
-            policy.observe_step(before, observation())
+            policy.observe_update(*core.observation_update())
         final = actor(full_graphs(), memory, prev_edge, prev_delta, deterministic=True)
     assert torch.equal(policy.inliers(), final.encoding.inliers() & t["edge_mask"][0])
     if not modes:
