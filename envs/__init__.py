@@ -6,6 +6,12 @@ Problems come from the synthetic generator (:func:`popbench.synthetic.make_probl
 problem every episode) or from a dataset (``dataset="intel"`` or a path: the same problem every
 episode, split among ``robots`` by :meth:`DistributedProblem.from_graph`).
 
+Training outliers (``outlier_rate_max`` > 0, synthetic problems only): every drawn problem gets
+outliers injected with the project's model (:func:`popbench.outliers.with_outliers`, the default
+loop-closure candidates), at a rate drawn per problem from ``U(0, outlier_rate_max)``; the
+problem's ``outlier_mask`` carries the labels (the expert leaves them out of its optimum, the
+supervised gate loss reads them). The default 0 draws clean problems.
+
 Padding maxima (``max_vertices``, ``max_edges``, ``max_degree``) default to: for a dataset, its
 exact local-graph maxima; for the synthetic generator, the maxima over :data:`PROBE_PROBLEMS`
 problems drawn with fixed seeds (independent of ``seed``, so envs with different seeds share their
@@ -21,6 +27,8 @@ from __future__ import annotations
 
 import dataclasses
 from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from envs.observation import Dimensions
 from popbench.distributed import DistributedProblem
@@ -47,6 +55,7 @@ def make_problem_source(
     max_vertices: int | None = None,
     max_edges: int | None = None,
     max_degree: int | None = None,
+    outlier_rate_max: float = 0.0,
 ) -> tuple[Any, Dimensions, bool]:
     """``(source, dims, has_ground_truth)``: a ``seed -> DistributedProblem`` callable and the
     padding maxima (see the module docstring).
@@ -60,13 +69,18 @@ def make_problem_source(
         start: dataset initial estimate, a name of :data:`popbench.initial.STARTS`
             (``"odometry"``, the composition, default; ``"chordal"``; ``"given"``, the file's).
         max_vertices, max_edges, max_degree: padding maxima overriding the defaults.
+        outlier_rate_max: the largest training outlier rate (module docstring; synthetic only).
     """
     if dataset is None:
-        source = _Synthetic(robots, noise, poses_per_robot, loop_ratio)
+        source = _Synthetic(robots, noise, poses_per_robot, loop_ratio, outlier_rate_max)
         probes = [source(PROBE_SEED + k) for k in range(PROBE_PROBLEMS)]
         dims = Dimensions.of(probes, PADDING_MARGIN, multiple=8)
         has_truth = True
     else:
+        if outlier_rate_max > 0:
+            from popbench.errors import ValueRangeError
+
+            raise ValueRangeError("outlier_rate_max", outlier_rate_max, "0 for a dataset")
         problem = dataset_problem(dataset, robots, partition, start)
         source = _Constant(problem)
         dims = Dimensions.of([problem])
@@ -92,19 +106,29 @@ def dataset_problem(
 
 @dataclasses.dataclass(frozen=True)
 class _Synthetic:
-    """A problem source drawing :func:`popbench.synthetic.make_problem` problems by seed."""
+    """A problem source drawing :func:`popbench.synthetic.make_problem` problems by seed, with
+    outliers at a rate ``U(0, outlier_rate_max)`` per problem when ``outlier_rate_max`` > 0
+    (the rate and the corruption seeded by the problem's seed)."""
 
     robots: int
     noise: str
     poses_per_robot: int
     loop_ratio: float
+    outlier_rate_max: float = 0.0
 
     def __call__(self, seed: int) -> DistributedProblem:
         from popbench.synthetic import make_problem
 
-        return make_problem(
+        problem = make_problem(
             self.robots, self.noise, self.poses_per_robot, self.loop_ratio, seed=seed
         )
+        if self.outlier_rate_max <= 0:
+            return problem
+        from popbench.outliers import with_outliers
+
+        rate_seed, outlier_seed = np.random.SeedSequence([seed, 1]).generate_state(2)
+        rate = np.random.default_rng(int(rate_seed)).uniform(0.0, self.outlier_rate_max)
+        return with_outliers(problem, rate, seed=int(outlier_seed))
 
 
 class _Constant:
@@ -128,6 +152,7 @@ def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, A
         "max_vertices",
         "max_edges",
         "max_degree",
+        "outlier_rate_max",
     }
     source = {key: value for key, value in options.items() if key in source_keys}
     env = {key: value for key, value in options.items() if key not in source_keys}

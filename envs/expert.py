@@ -19,8 +19,11 @@ pre-order position of the vertex a correction moves), then the remaining edges w
 
 :meth:`Expert.edge` and :meth:`Expert.delta` label any state (DAgger): the expert's edge among
 the unprocessed ones, and its Δ on any edge (0 on a non-tree edge in the subtree mode), both in
-the core's action units (whitened when ``action_scale="whitened"``). The expert reads the optimum
-(privileged); a learned actor must never get it as an input.
+the core's action units (whitened when ``action_scale="whitened"``); :meth:`Expert.right_edges`
+(every edge the expert counts as right) and :meth:`Expert.actor_delta` (the actor output that
+makes the core execute the expert's Δ, the Gauss–Newton base step taken off) are the labels of
+behaviour cloning (agents.imitation, agents.loss). The expert reads the optimum (privileged); a
+learned actor must never get it as an input.
 """
 
 from __future__ import annotations
@@ -124,3 +127,26 @@ class Expert:
         """The expert's joint action ``(edge (B, n), delta (B, n, 3))``."""
         edge = self.edge()
         return edge, self.delta(edge)
+
+    def right_edges(self) -> torch.Tensor:
+        """``(B, n, E + 1)`` bool: the choices the expert counts as right — the unprocessed
+        tree edges where any is left (subtree mode: a correction there changes only that edge's
+        relative pose, so the order does not change the end point), else every allowed one."""
+        core = self.core
+        mask = core.action_mask()
+        if core.correction != "subtree":
+            return mask
+        tree = core.tensors["tree_edge"][..., : mask.shape[-1] - 1] & mask[..., :-1]
+        tree = torch.cat([tree, torch.zeros_like(tree[..., :1])], -1)
+        return torch.where(tree.any(-1, keepdim=True), tree, mask)
+
+    def actor_delta(self, edge: torch.Tensor) -> torch.Tensor:
+        """``(B, n, 3)`` float32: the actor output that makes the core execute the expert's Δ
+        on ``edge (B, n)`` — the expert's Δ itself, or its difference from the Gauss–Newton
+        base step when the core adds one (``base="gauss-newton"``); not clipped."""
+        delta = self.delta(edge)
+        if self.core.base == "gauss-newton":
+            from envs.sweep import gauss_newton_delta
+
+            delta = delta - gauss_newton_delta(self.core, edge)
+        return delta.to(torch.float32)

@@ -88,7 +88,8 @@ def pack_problem(
     ``edge_mask (n,E)``, ``measurements``/``targets (n,E+1,3)``, ``kappa``/``tau (n,E+1)``
     (0 on pads), ``edge_attr (n,E,11)``, ``incident (n,V+1,D)`` edge slots (pad → ``E``),
     ``num_edges (n,)``, ``sqrt_information``/``inverse_sqrt_information (n,E+1,3,3)``
-    (:func:`whitening`; identity on pads).
+    (:func:`whitening`; identity on pads), ``outlier (n,E)`` bool: the edge is an injected
+    outlier (``problem.outlier_mask``; a training label, never an observation).
     """
     graph = problem.graph
     if reward not in REWARDS:
@@ -118,7 +119,9 @@ def pack_problem(
         "num_edges": np.zeros(n, np.int64),
         "sqrt_information": np.tile(np.eye(3), (n, e + 1, 1, 1)),
         "inverse_sqrt_information": np.tile(np.eye(3), (n, e + 1, 1, 1)),
+        "outlier": np.zeros((n, e), bool),
     }
+    outlier_mask = problem.outlier_mask
     kappa_all, tau_all = weights(graph.information)
     gap_scale = np.log1p(max(graph.num_poses - 1, 1))
     for robot, local in enumerate(problem.local_graphs):  # one iteration per agent
@@ -149,6 +152,8 @@ def pack_problem(
         root, inverse_root = whitening(local.graph.information)
         pack["sqrt_information"][robot, :ne] = root
         pack["inverse_sqrt_information"][robot, :ne] = inverse_root
+        if outlier_mask is not None:
+            pack["outlier"][robot, :ne] = outlier_mask[edges]
     return pack
 
 

@@ -10,6 +10,19 @@ Tensordict layout (``B`` = env batch, ``n`` agents, ``V``/``E`` padding maxima):
     ("agents", "done"/"terminated")    (B, n, 1)     bool, the episode end broadcast to agents
     "done" / "terminated"              (B, 1)        bool, every local edge was processed
 
+With ``labels=True`` (training only: the labels are privileged) every reset and step also writes
+the labels of the state it leaves, outside the observation (a policy reads only the
+observation's keys)::
+
+    ("agents", "labels", "right")          (B, n, E+1)  bool: edges the expert counts as right
+    ("agents", "labels", "expert_edge")    (B, n)       int64: the expert's edge
+    ("agents", "labels", "expert_delta")   (B, n, 3)    float32: the actor output that executes
+                                                        the expert's Δ on it (envs.expert)
+    ("agents", "labels", "outlier")        (B, n, E)    bool: the edge is an injected outlier
+
+so a transition in a replay buffer carries the labels of its state (behaviour cloning and the
+supervised gate loss of agents.loss read them there).
+
 The edge spec's mask is updated after every reset and step, so ``env.rand_action()`` (and
 ``check_env_specs``) draw only valid edges. Episodes end by termination (the horizon is part of the
 task), never by truncation.
@@ -44,8 +57,9 @@ class PGOEnv(EnvBase):
         reward: ``"localisation"`` (ground-truth χ², default) or ``"F"``.
         invalid_edge: ``"raise"`` or ``"repair"`` (see :class:`envs.core.PGOCore`).
         dtype: floating dtype of the pose state.
-        modes: ``correction``, ``observation``, ``action_scale``, ``place_separators`` of
-            :class:`envs.core.PGOCore`.
+        labels: also write the expert's and the outlier labels (module docstring).
+        modes: ``correction``, ``observation``, ``action_scale``, ``place_separators``, ``base``
+            of :class:`envs.core.PGOCore`.
     """
 
     def __init__(
@@ -60,6 +74,7 @@ class PGOEnv(EnvBase):
         reward: str = "localisation",
         invalid_edge: str = "raise",
         dtype: torch.dtype = torch.float64,
+        labels: bool = False,
         **modes: str | bool | None,
     ) -> None:
         super().__init__(device=device, batch_size=torch.Size([batch_size]))
@@ -76,6 +91,11 @@ class PGOEnv(EnvBase):
             **modes,  # type: ignore[arg-type]
         )
         self.sampler = ProblemSampler(source, batch_size, seed)
+        self.expert = None
+        if labels:
+            from envs.expert import Expert
+
+            self.expert = Expert(self.core)
         self._make_specs()
 
     # -- specs -----------------------------------------------------------------------------------
@@ -102,13 +122,19 @@ class PGOEnv(EnvBase):
             shape=(b, n),
             device=device,
         )
-        self.observation_spec = Composite(
-            agents=Composite(
-                observation=observation, action_mask=flag(e + 1), shape=(b, n), device=device
-            ),
-            shape=(b,),
-            device=device,
+        agents = Composite(
+            observation=observation, action_mask=flag(e + 1), shape=(b, n), device=device
         )
+        if self.expert is not None:
+            agents["labels"] = Composite(
+                right=flag(e + 1),
+                expert_edge=Bounded(0, e, (b, n), dtype=torch.int64, device=device),
+                expert_delta=real(3),
+                outlier=flag(e),
+                shape=(b, n),
+                device=device,
+            )
+        self.observation_spec = Composite(agents=agents, shape=(b,), device=device)
         limit = self.core.action_bound.to(torch.float32).expand(b, n, 3).clone()
         action = Composite(
             edge=Categorical(
@@ -195,9 +221,27 @@ class PGOEnv(EnvBase):
         )
         if reward is not None:
             agents["reward"] = reward.to(torch.float32).unsqueeze(-1)
+        if self.expert is not None:
+            agents["labels"] = self._labels()
         return TensorDict(
             {"agents": agents, "done": root_done.clone(), "terminated": root_done.clone()},
             batch_size=(b,),
+            device=self.device,
+        )
+
+    @torch.no_grad()
+    def _labels(self) -> TensorDict:
+        """The labels of the current state (module docstring), ``(B, n)``."""
+        b, n, e = self.batch_size[0], self.num_agents, self.dims.edges
+        edge = self.expert.edge()
+        return TensorDict(
+            {
+                "right": self.expert.right_edges(),
+                "expert_edge": edge,
+                "expert_delta": self.expert.actor_delta(edge),
+                "outlier": self.core.tensors["outlier"][..., :e].clone(),
+            },
+            batch_size=(b, n),
             device=self.device,
         )
 

@@ -10,9 +10,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 
 from popbench import objective
 from popbench.distributed import DistributedProblem
+from popbench.graph import PoseGraph
 from popbench.methods import Budget, Result
 from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
 from popbench.solvers.lm import solve_graph
@@ -33,6 +36,8 @@ def local_optima(
         iterations: LM steps at most per robot.
         excluded: ``(M,)`` bool over the global edges, True for edges left out of every local
             graph (e.g. injected outliers when the optimum serves as an expert's target), or None.
+            A vertex that the remaining edges no longer join to the robot's first pose (a
+            separator copy seen only over an excluded edge) keeps its start.
         starts: one ``(n_r, 3)`` start per robot (e.g. with placed separator copies); default
             the problem's start, ``problem.split()``.
 
@@ -44,12 +49,39 @@ def local_optima(
     local_poses, seconds = [], np.zeros(problem.num_robots)
     for local, start in zip(problem.local_graphs, starts, strict=True):
         graph = local.graph
-        if excluded is not None:
-            graph = graph.edge_subset(~excluded[local.edge_ids])
         started = time.perf_counter()
-        local_poses.append(solve_graph(graph, start, iterations).poses)
+        if excluded is None:
+            local_poses.append(solve_graph(graph, start, iterations).poses)
+        else:
+            kept = graph.edge_subset(~excluded[local.edge_ids])
+            local_poses.append(_solve_rooted(kept, np.asarray(start, dtype=float), iterations))
         seconds[local.robot] = time.perf_counter() - started
     return local_poses, seconds
+
+
+def _solve_rooted(graph: PoseGraph, start: np.ndarray, iterations: int) -> np.ndarray:
+    """``(N, 3)``: LM on the vertices joined to vertex 0 by ``graph``'s edges (vertex 0 fixed);
+    the other vertices keep their ``start``."""
+    adjacency = sparse.coo_matrix(
+        (np.ones(graph.num_edges), (graph.tails, graph.heads)), shape=(graph.num_poses,) * 2
+    )
+    labels = csgraph.connected_components(adjacency, directed=False)[1]
+    rooted = labels == labels[0]
+    if rooted.all():
+        return solve_graph(graph, start, iterations).poses
+    index = np.cumsum(rooted) - 1  # new ids of the rooted vertices (vertex 0 stays 0)
+    keep = rooted[graph.tails]  # an edge with one rooted end has both
+    sub = graph.edge_subset(keep)
+    sub = sub.replace(
+        poses=start[rooted],
+        tails=index[sub.tails],
+        heads=index[sub.heads],
+        ground_truth=None if graph.ground_truth is None else graph.ground_truth[rooted],
+        robots=None if graph.robots is None else graph.robots[rooted],
+    )
+    poses = start.copy()
+    poses[rooted] = solve_graph(sub, start[rooted], iterations).poses
+    return poses
 
 
 def solve(
