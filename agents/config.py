@@ -88,8 +88,14 @@ class AlgorithmConfig:
         huber_delta: the critic regresses its TD error with a Huber loss of this width (in
             scaled-reward units); None gives SAC's ½ δ² (paper: unspecified). See agents.loss.
         critic_warmup_updates: updates during which only the critic and the temperatures
-            learn (the actor's loss is left out; 0 = SAC, the paper's).
+            learn (the actor's loss is left out; 0 = SAC, the paper's; the supervised terms
+            below do not need the critic and act from the first update).
         max_grad_norm: gradient clipping of every optimiser step.
+        bc_weight: weight of a behaviour-cloning term on the replayed states, labelled by the
+            expert at collection time (agents.loss "loss_bc"; 0 = none, the paper's GA-SAC;
+            beyond the paper, docs/training.md).
+        gate_weight: weight of the supervised gate loss against the injected outlier labels
+            (agents.loss "loss_gate"; 0 = none; beyond the paper).
     """
 
     gamma: float = 0.99
@@ -110,6 +116,8 @@ class AlgorithmConfig:
     huber_delta: float | None = 1.0
     critic_warmup_updates: int = 0
     max_grad_norm: float = 10.0
+    bc_weight: float = 0.0
+    gate_weight: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -130,6 +138,10 @@ class ExperimentConfig:
         eval_problems: number of held-out synthetic problems.
         out_dir: run directory (checkpoints, CSV, PNG).
         progress: show a progress bar.
+        outlier_rate_max: training problems get injected outliers (popbench.outliers, the
+            loop-closure candidates) at a rate drawn per problem from U(0, outlier_rate_max);
+            0 = clean problems (envs.make_problem_source). The held-out evaluation during
+            training stays clean.
     """
 
     noise: str = "V2"
@@ -145,6 +157,7 @@ class ExperimentConfig:
     eval_problems: int = 8
     out_dir: str = "runs/ga-sac"
     progress: bool = True
+    outlier_rate_max: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -198,6 +211,8 @@ class ImitationConfig:
             learner's own states dominate once β is small).
         delta_weight: weight of the correction loss against the edge loss.
         seconds: optional wall-clock cap of the phase [s].
+        gate_weight: weight of the supervised gate loss against the injected outlier labels
+            (agents.loss_terms; 0 = none; beyond the paper).
     """
 
     episodes: int = 0
@@ -207,6 +222,7 @@ class ImitationConfig:
     beta_decay: float = 0.9
     delta_weight: float = 1.0
     seconds: float | None = None
+    gate_weight: float = 0.0
 
 
 @dataclass(frozen=True)

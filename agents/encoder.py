@@ -97,12 +97,15 @@ class Encoding:
         pooled: [G, d] masked mean of `nodes` over real vertices (the graph latent).
         gates: [L, G, E] gate value z per layer and edge (0 on padding).
         gate_l1: scalar, mean of z over layers and real edges (the L1 sparsity term).
+        gate_logits: [L, G, E] the gates' noise-free logits α/τ (σ of it is the relaxation u
+            the evaluation gate is made of; the supervised gate loss regresses it).
     """
 
     nodes: Tensor
     pooled: Tensor
     gates: Tensor
     gate_l1: Tensor
+    gate_logits: Tensor
 
     def inliers(self, threshold: float = 0.5) -> Tensor:
         """[G, E] bool: edges whose layer-averaged gate exceeds `threshold` (kept, not pruned)."""
@@ -226,7 +229,10 @@ class AdaptiveEdgeGate(nn.Module):
         deterministic: bool,
     ) -> Tensor:
         """Gate z ∈ [0, 1] per edge, [M] (eqs. bernoulli, minmax)."""
-        alpha = self.logits(messages, residuals, log_info, inter_loop)
+        return self.relax(self.logits(messages, residuals, log_info, inter_loop), deterministic)
+
+    def relax(self, alpha: Tensor, deterministic: bool) -> Tensor:
+        """z ∈ [0, 1] of the logits α [M] (eqs. bernoulli, minmax), [M]."""
         if deterministic:
             u = torch.sigmoid(alpha / self.temperature)
         else:
@@ -309,21 +315,30 @@ class GraphEncoder(nn.Module):
         log_info = attr[:, LOG_INFO_COLUMNS]
         inter_loop = attr[:, INTER_LOOP_COLUMN]
 
-        gate_values = []
+        gate_values, gate_logits = [], []
         h = x
         for conv, gate in zip(self.convs, self.gates, strict=True):
             messages = conv.messages(h, directed_index, directed_attr)  # [2M, d]
             undirected = 0.5 * (messages[: valid.shape[0]] + messages[valid.shape[0] :])
-            z = gate(undirected, residuals, log_info, inter_loop, deterministic) * valid
+            alpha = gate.logits(undirected, residuals, log_info, inter_loop)
+            z = gate.relax(alpha, deterministic) * valid
             gate_values.append(z)
+            gate_logits.append(alpha / gate.temperature)
             h = conv(h, directed_index, messages * torch.cat([z, z]).unsqueeze(-1), degree)
 
         nodes = h.view(num_graphs, num_vertices, self.hidden)
         node_weight = graphs.node_mask.to(x.dtype).unsqueeze(-1)
         pooled = (nodes * node_weight).sum(1) / node_weight.sum(1).clamp(min=1.0)
-        gates = torch.stack(gate_values).view(len(self.convs), num_graphs, num_edges)
+        shape = (len(self.convs), num_graphs, num_edges)
+        gates = torch.stack(gate_values).view(shape)
         gate_l1 = gates.sum() / (valid.sum().clamp(min=1.0) * len(self.convs))
-        return Encoding(nodes=nodes, pooled=pooled, gates=gates, gate_l1=gate_l1)
+        return Encoding(
+            nodes=nodes,
+            pooled=pooled,
+            gates=gates,
+            gate_l1=gate_l1,
+            gate_logits=torch.stack(gate_logits).view(shape),
+        )
 
 
 def edge_embedding_width(hidden: int, edge_dim: int) -> int:

@@ -11,10 +11,12 @@ state instead of an aggregated dataset):
     L_edge  = −log Σ_{e ∈ right(s)} π(e | s)                      (both heads share the GNN)
     L_delta = ‖(δ_θ(s, e_learner) − clip(δ*(s, e_learner))) / bound‖²
 
-where ``bound`` is the action bound (Δmax, or the whitened bound). The executed action is the
-expert's with probability β_k = β₀ · decay^k in episode k (per agent), the learner's otherwise,
-so the states drift from the expert's towards the learner's own. The recurrent memory is carried
-along the episode and detached at every step (truncated back-propagation of length one).
+where ``bound`` is the action bound (Δmax, or the whitened bound) (agents.loss_terms). With
+``gate_weight`` > 0 and training problems with injected outliers (``outlier_rate_max``) the
+supervised gate loss of agents.loss_terms is added, times ``gate_weight``. The executed action
+is the expert's with probability β_k = β₀ · decay^k in episode k (per agent), the learner's
+otherwise, so the states drift from the expert's towards the learner's own. The recurrent memory
+is carried along the episode and detached at every step (truncated back-propagation of length one).
 
 The learner never sees the optimum: it enters only the labels.
 """
@@ -34,6 +36,7 @@ import torch.nn.functional as F  # noqa: N812
 from agents.actor import HybridActor
 from agents.config import ExperimentConfig, ImitationConfig, TaskConfig
 from agents.encoder import GraphBatch
+from agents.loss_terms import gate_supervision_loss, imitation_losses
 
 
 @dataclasses.dataclass
@@ -46,6 +49,7 @@ class EpisodeLog:
         right_edge: share of the learner's edge choices that were right.
         local_gain: share of the local error the executed episode removed, 1 − ΣF_T / ΣF_0.
         seconds: wall time of the episode [s].
+        gate_loss: the supervised gate loss (0 when its weight is 0).
     """
 
     episode: int
@@ -55,17 +59,21 @@ class EpisodeLog:
     right_edge: float
     local_gain: float
     seconds: float
+    gate_loss: float = 0.0
 
 
 def make_core(task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: int):  # noqa: ANN201
-    """(core, sampler): a PGOCore over `batch` synthetic problems of the experiment's kind with
-    measurement reward, and its seeded problem stream."""
+    """(core, sampler): a PGOCore over `batch` synthetic problems of the experiment's kind
+    (with its training outliers) with measurement reward, and its seeded problem stream."""
     from envs import make_problem_source
     from envs.core import PGOCore
     from envs.sampler import ProblemSampler
 
     source, dims, _ = make_problem_source(
-        experiment.robots, experiment.noise, poses_per_robot=experiment.poses_per_robot
+        experiment.robots,
+        experiment.noise,
+        poses_per_robot=experiment.poses_per_robot,
+        outlier_rate_max=experiment.outlier_rate_max,
     )
     core = PGOCore(experiment.robots, dims, batch, reward="F", **task.core_options())
     return core, ProblemSampler(source, batch, seed)
@@ -79,55 +87,6 @@ def graph_batch(core) -> GraphBatch:  # noqa: ANN001
         **{key: value.reshape(g, *value.shape[2:]) for key, value in observation.items()},
         action_mask=core.action_mask().reshape(g, -1),
     )
-
-
-def right_edges(core) -> torch.Tensor:  # noqa: ANN001
-    """(G, E + 1) bool: the edges the expert counts as right — the unprocessed tree edges where
-    any is left (subtree mode), else every allowed choice."""
-    mask = core.action_mask()
-    if core.correction != "subtree":
-        return mask.reshape(-1, mask.shape[-1])
-    tree = core.tensors["tree_edge"][..., : mask.shape[-1] - 1] & mask[..., :-1]
-    tree = torch.cat([tree, torch.zeros_like(tree[..., :1])], -1)
-    right = torch.where(tree.any(-1, keepdim=True), tree, mask)
-    return right.reshape(-1, mask.shape[-1])
-
-
-def expert_action(core, expert, edge: torch.Tensor) -> torch.Tensor:  # noqa: ANN001
-    """(B, n, 3) float32: the actor output that makes the environment execute the expert's Δ
-    on `edge` (B, n) — the expert's Δ itself, or its difference from the Gauss–Newton base step
-    when the environment adds one (TaskConfig.base)."""
-    delta = expert.delta(edge)
-    if core.base == "gauss-newton":
-        from envs.sweep import gauss_newton_delta
-
-        delta = delta - gauss_newton_delta(core, edge)
-    return delta.to(torch.float32)
-
-
-def imitation_losses(
-    log_probs: torch.Tensor,
-    right: torch.Tensor,
-    delta: torch.Tensor,
-    label: torch.Tensor,
-    acting: torch.Tensor,
-    bound: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """(L_edge, L_delta) of the module docstring, averaged over the G graphs (L_delta over the
-    acting ones).
-
-    Args:
-        log_probs: (G, E + 1) log π(e | s); right: (G, E + 1) bool right choices.
-        delta: (G, 3) the learner's correction on its edge; label: (G, 3) the expert's on it.
-        acting: (G,) bool, the learner chose a real edge (not the no-op).
-        bound: (3,) the action bound.
-    """
-    right_log_prob = torch.logsumexp(log_probs.masked_fill(~right, float("-inf")), -1)
-    edge_loss = -right_log_prob.mean()
-    target = torch.maximum(torch.minimum(label, bound), -bound)
-    squared = (((delta - target) / bound) ** 2).sum(-1)
-    delta_loss = (squared * acting).sum() / acting.sum().clamp(min=1)
-    return edge_loss, delta_loss
 
 
 def imitate(
@@ -177,22 +136,30 @@ def imitate(
         memory = actor.initial_memory(g)
         prev_edge, prev_delta = torch.zeros(g, e + 1), torch.zeros(g, 3)
         initial_loss = float(core.tensors["loss"].sum())
-        sums = np.zeros(3)
+        sums = np.zeros(4)
         steps = int(core.tensors["num_edges"].max())
         for _ in range(steps):
             graphs = graph_batch(core)
             out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
-            right = right_edges(core)
+            right = expert.right_edges().reshape(g, -1)
             with torch.no_grad():
-                label = expert_action(core, expert, out.edge.view(b, n)).reshape(g, 3)
+                label = expert.actor_delta(out.edge.view(b, n)).reshape(g, 3)
                 expert_edge = expert.edge()
-                expert_delta = expert_action(core, expert, expert_edge)
+                expert_delta = expert.actor_delta(expert_edge)
             acting = out.edge < e
             edge_loss, delta_loss = imitation_losses(
                 out.edge_log_probs, right, out.delta, label, acting, bound
             )
+            loss = edge_loss + config.delta_weight * delta_loss
+            gate_loss = torch.zeros(())
+            if config.gate_weight > 0:
+                outlier = core.tensors["outlier"].reshape(g, -1)
+                gate_loss = gate_supervision_loss(
+                    out.encoding.gate_logits, outlier, graphs.edge_mask
+                )
+                loss = loss + config.gate_weight * gate_loss
             optimiser.zero_grad()
-            (edge_loss + config.delta_weight * delta_loss).backward()
+            loss.backward()
             optimiser.step()
             use_expert = torch.rand(b, n, generator=generator) < beta
             edge = torch.where(use_expert, expert_edge, out.edge.view(b, n))
@@ -203,7 +170,7 @@ def imitate(
             prev_edge = F.one_hot(edge.reshape(g), e + 1).to(torch.float32)
             prev_delta = torch.maximum(torch.minimum(delta.reshape(g, 3), bound), -bound)
             chosen_right = torch.gather(right, 1, out.edge.unsqueeze(-1)).float().mean()
-            sums += [edge_loss.item(), delta_loss.item(), chosen_right.item()]
+            sums += [edge_loss.item(), delta_loss.item(), chosen_right.item(), gate_loss.item()]
         log = EpisodeLog(
             episode=k,
             beta=beta,
@@ -212,6 +179,7 @@ def imitate(
             right_edge=sums[2] / steps,
             local_gain=1.0 - float(core.tensors["loss"].sum()) / max(initial_loss, 1e-12),
             seconds=time.perf_counter() - tick,
+            gate_loss=sums[3] / steps,
         )
         logs.append(log)
         if on_episode is not None:

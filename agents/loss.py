@@ -32,6 +32,22 @@ tanh-clipped reward near −1 on a low-L agent and ~10⁻⁴ on a high-L one: 1 
 rewards of a random policy are below −11 and 0.1 % below −73, and these carry most of the
 squared TD error, so an MSE critic spends its updates on them. Huber bounds their gradient.
 
+Supervised terms (beyond the paper; agents.loss_terms, docs/training.md), each with its own key
+and only when its weight is > 0, so that the paper's GA-SAC is unchanged by default:
+
+  loss_bc   = λ_bc · (L_edge + L_delta): behaviour cloning of the expert on the replayed states.
+              The labels were stored with each transition at collection time (the env's
+              ``labels=True``: ("agents", "labels", "right" | "expert_edge" | "expert_delta"),
+              the labels of the transition's state s). L_edge = −log Σ_{e right} π(e | s);
+              L_delta is the squared error of the actor's deterministic correction on the
+              expert's edge (teacher forcing: one more actor pass, no sampling) against the
+              expert's, in units of the action bound.
+  loss_gate = λ_gate_sup · L_gate: the supervised gate loss of the actor pass's gate logits
+              against ("agents", "labels", "outlier"), the injected outliers.
+
+Both reach only the actor's parameters. They do not depend on the critic, so they act during
+the critic warm-up too (agents.trainer.optimise leaves out loss_actor only).
+
 Gate L1: only the actor's gates carry the L1 penalty. The critic is a value estimator whose gates
 flag nothing (prop-v1's inlier flags are the actor's); penalising them only biases the value
 fit. λ_gate multiplies the mean of z over real edges and layers (a per-edge normalisation).
@@ -69,6 +85,9 @@ from agents.actor import (
 from agents.config import AlgorithmConfig
 from agents.critic import CentralCritic
 from agents.encoder import Encoding, GraphBatch
+from agents.loss_terms import gate_supervision_loss, imitation_losses
+
+LABELS = ("agents", "labels")
 
 
 def critic_regression(td_error: Tensor, huber_delta: float | None) -> Tensor:
@@ -85,7 +104,8 @@ class GASACLoss(LossModule):
     Args:
         actor: the shared actor (its parameters are the ones the collector's policy uses).
         critic: the central critic; target parameters are a copy updated by `SoftUpdate`.
-        config: γ, initial temperatures, target entropies and the gate L1 weight.
+        config: γ, initial temperatures, target entropies, the gate L1 weight and the
+            weights of the supervised terms (bc_weight, gate_weight).
     """
 
     @dataclass
@@ -99,6 +119,10 @@ class GASACLoss(LossModule):
         reward: tuple = ("agents", "reward")
         done: tuple = ("agents", "done")
         terminated: tuple = ("agents", "terminated")
+        right_edges: tuple = LABELS + ("right",)
+        expert_edge: tuple = LABELS + ("expert_edge",)
+        expert_delta: tuple = LABELS + ("expert_delta",)
+        outlier: tuple = LABELS + ("outlier",)
 
     actor_network: TensorDictModule
     critic_network: TensorDictModule
@@ -117,6 +141,8 @@ class GASACLoss(LossModule):
         self.gate_l1 = config.gate_l1
         self.reward_scale = config.reward_scale
         self.huber_delta = config.huber_delta
+        self.bc_weight = config.bc_weight
+        self.gate_weight = config.gate_weight
         self.log_alpha_edge = nn.Parameter(torch.tensor(math.log(config.init_alpha_edge)))
         self.log_alpha_delta = nn.Parameter(torch.tensor(math.log(config.init_alpha_delta)))
 
@@ -237,13 +263,44 @@ class GASACLoss(LossModule):
         delta_gap = (out.delta_log_prob + self.delta_target_entropy).detach()
         return -(self.log_alpha_delta * acting * delta_gap).sum() / acting.sum().clamp(min=1.0)
 
+    def bc_loss(self, tensordict: TensorDictBase, graphs: GraphBatch) -> Tensor:
+        """λ_bc · (L_edge + L_delta) on the stored labels (module docstring): one deterministic
+        actor pass from the stored recurrent state, teacher-forced on the expert's edge."""
+        keys = self.tensor_keys
+        lead = tensordict.get(keys.action_mask).shape[:-1]
+        choices = graphs.action_mask.shape[-1]
+        memory, prev_edge, prev_delta = recurrent_inputs(
+            tensordict, self.actor_network, lead, choices, False
+        )
+        expert_edge = tensordict.get(keys.expert_edge).reshape(-1)
+        with self.actor_network_params.to_module(self.actor_network):
+            out = self.actor_network(
+                graphs, memory, prev_edge, prev_delta, deterministic=True, edge=expert_edge
+            )
+            bound = self.actor_network.delta_max.clone()
+        right = tensordict.get(keys.right_edges).reshape(-1, choices)
+        label = tensordict.get(keys.expert_delta).reshape(-1, 3)
+        edge_loss, delta_loss = imitation_losses(
+            out.edge_log_probs, right, out.delta, label, expert_edge < choices - 1, bound
+        )
+        return self.bc_weight * (edge_loss + delta_loss)
+
+    def gate_loss(self, tensordict: TensorDictBase, out: ActorOutput, graphs: GraphBatch) -> Tensor:
+        """λ_gate_sup · L_gate of the actor pass's gates against the stored outlier labels."""
+        outlier = tensordict.get(self.tensor_keys.outlier)
+        outlier = outlier.reshape(-1, outlier.shape[-1])
+        logits = out.encoding.gate_logits
+        return self.gate_weight * gate_supervision_loss(logits, outlier, graphs.edge_mask)
+
     # -- forward -------------------------------------------------------------------------------
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
-        """Losses for a batch [B] of transitions; returns loss_* scalars and diagnostics.
+        """Losses for a batch [B] of transitions; returns loss_* scalars and diagnostics
+        (loss_bc / loss_gate only when their weights are > 0).
 
-        The order of the parts is fixed (target, critic, actor, temperatures): the target and
-        the actor each sample an action, so reordering them changes the random stream."""
+        The order of the parts is fixed (target, critic, actor, temperatures, supervised
+        terms): the target and the actor each sample an action, so reordering them changes the
+        random stream (the supervised terms sample nothing)."""
         alphas = self._alphas()
         graphs = self._graphs(tensordict, next_=False)
         next_graphs = self._graphs(tensordict, next_=True)
@@ -252,8 +309,14 @@ class GASACLoss(LossModule):
         loss_actor, out, acting, delta_log_prob = self.actor_loss(tensordict, graphs, alphas)
         loss_alpha_edge, edge_target = self.alpha_edge_loss(out, graphs)
         loss_alpha_delta = self.alpha_delta_loss(out, acting)
+        supervised = {}
+        if self.bc_weight > 0:
+            supervised["loss_bc"] = self.bc_loss(tensordict, graphs)
+        if self.gate_weight > 0:
+            supervised["loss_gate"] = self.gate_loss(tensordict, out, graphs)
         return TensorDict(
             {
+                **supervised,
                 "loss_actor": loss_actor,
                 "loss_qvalue": loss_qvalue,
                 "loss_alpha_edge": loss_alpha_edge,

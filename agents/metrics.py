@@ -25,6 +25,8 @@ METRIC_FIELDS = (
     "log_prob_delta",
     "q_mean",
     "gate_mean",
+    "loss_bc",
+    "loss_gate",
     "eval_f_reduction",
     "wall_s",
 )

@@ -55,7 +55,12 @@ def build_session(config: TrainConfig) -> Session:
     """Env (+ recurrent-state primer), actor, critic, loss, target updater and optimisers."""
     experiment, algorithm = config.experiment, config.algorithm
     torch.manual_seed(experiment.seed)
-    base_env = make_env(config, experiment.num_envs, experiment.seed)
+    # the training env: the experiment's outliers, and the labels the supervised terms read
+    supervised = algorithm.bc_weight > 0 or algorithm.gate_weight > 0
+    training_options: dict[str, Any] = {"outlier_rate_max": experiment.outlier_rate_max}
+    if supervised:
+        training_options["labels"] = True
+    base_env = make_env(config, experiment.num_envs, experiment.seed, **training_options)
     # the actor's output bound is the action's: Δmax, or the whitened bound (TaskConfig)
     delta_max = tuple(float(v) for v in base_env.core.action_bound.cpu())
     config = dataclasses.replace(

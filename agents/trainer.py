@@ -5,7 +5,8 @@
     metrics.csv     one row per collector batch: frames, updates, episodes, episode_return (mean
                     over episodes finished in the batch of the per-agent-mean return), losses,
                     temperatures, edge entropy, mean log π(δ), mean Q of the taken actions,
-                    gate mean (last update of the batch), at eval points eval_f_reduction, and
+                    gate mean, loss_bc / loss_gate when weighted (last update of the batch),
+                    at eval points eval_f_reduction, and
                     wall_s (seconds of training, summed over resumed calls)
     learning_curve.png, .pdf  episode return and held-out F reduction against frames
     imitation.pt, imitation.csv, imitation-actor.pt  the imitation phase (agents.imitation),
