@@ -6,6 +6,10 @@ each local edge once) from the same start, with the separator copies placed from
 neighbours (envs.tree.place_separators; the no-op row is that placement alone). The non-learned
 rows act in :data:`POLICY_TASK`; the learned rows in the environment their checkpoint was
 trained with.
+
+With an outlier rate (``spec["outlier_rate"]`` > 0) every row gets the same problem with
+outliers injected (popbench.outliers.with_outliers, the loop-closure candidates, seeded by the
+problem's seed), and the learned rows are also scored as classifiers of them (:func:`gate_scores`).
 """
 
 from __future__ import annotations
@@ -130,26 +134,59 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
         return local_optima(problem)[0]
     if row == "ground-truth":
         return problem.split(problem.graph.ground_truth)
-    if row in ("prop-v1", "imitation"):
-        actor, task = cached_actor(spec["checkpoint"], "cpu")
-        with torch.no_grad():
-            return run_episode(actor, problem, task=task).local_poses
     raise NotImplementedError(f"held-out row {row!r}")
+
+
+def gate_scores(problem: DistributedProblem, gate: np.ndarray) -> dict[str, float]:
+    """The actor's gate as an outlier classifier over the candidate edges (the loop closures,
+    popbench.outliers.candidate_mask): ``gate_auc``, the ROC AUC of the outlier score 1 − gate
+    (NaN without an outlier), and the counts behind precision and recall at the inference
+    threshold (an edge is flagged when its gate is ≤ 0.5 in a robot that holds it, as prop-v1
+    flags it): ``gate_flagged``, ``gate_true`` (injected outliers) and ``gate_hits``."""
+    from popbench.metrics import roc_auc
+    from popbench.outliers import candidate_mask
+
+    among = candidate_mask(problem.graph)
+    truth = problem.outlier_mask[among]
+    flagged = gate[among] <= 0.5
+    return {
+        "gate_auc": roc_auc(1.0 - gate[among], truth),
+        "gate_flagged": float(flagged.sum()),
+        "gate_true": float(truth.sum()),
+        "gate_hits": float((flagged & truth).sum()),
+    }
 
 
 def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
     """F and ATE of one row on one held-out problem, and ``F_local``: F of the assembled local
-    copies handed to the consensus (the start itself for ``initial``)."""
+    copies handed to the consensus (the start itself for ``initial``); with an outlier rate,
+    the learned rows add :func:`gate_scores`."""
     problem = make_problem(
         spec["robots"], spec["noise"], spec["poses_per_robot"], seed=spec["problem_seed"]
     )
+    rate = spec.get("outlier_rate", 0.0)
+    if rate > 0:
+        from popbench.outliers import with_outliers
+
+        problem = with_outliers(problem, rate, seed=spec["problem_seed"])
     graph = problem.graph
     if spec["row"] == "initial":
         f = objective.objective(graph, graph.poses)
         return {"F": f, "ATE": ate(graph.poses, graph.ground_truth), "F_local": f}
-    reconciled = reconcile(problem, local_estimates(spec["row"], problem, spec), spec["consensus"])
+    scores: dict[str, float] = {}
+    if spec["row"] in ("prop-v1", "imitation"):
+        actor, task = cached_actor(spec["checkpoint"], "cpu")
+        with torch.no_grad():
+            run = run_episode(actor, problem, task=task)
+        local = run.local_poses
+        if rate > 0:
+            scores = gate_scores(problem, run.gate)
+    else:
+        local = local_estimates(spec["row"], problem, spec)
+    reconciled = reconcile(problem, local, spec["consensus"])
     return {
         "F": objective.objective(graph, reconciled.poses),
         "ATE": ate(reconciled.poses, graph.ground_truth),
         "F_local": reconciled.F_before,
+        **scores,
     }

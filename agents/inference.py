@@ -303,8 +303,11 @@ class IncrementalPolicy:
         changed = (residuals != self.residuals[edges]).any(-1)
         self.observe(vertices[moved], features[moved], edges[changed], residuals[changed])
 
+    def gate_means(self) -> Tensor:
+        """[G, E] the layer-averaged gate of every edge slot (0 on padding)."""
+        g, _, e = self.shape
+        return torch.stack([z[:-1] for z in self.gates]).mean(0).view(g, e)
+
     def inliers(self, threshold: float = 0.5) -> Tensor:
         """[G, E] bool: layer-averaged gate > threshold (encoder.Encoding.inliers)."""
-        g, _, e = self.shape
-        gates = torch.stack([z[:-1] for z in self.gates]).mean(0)
-        return (gates > threshold).view(g, e)
+        return self.gate_means() > threshold

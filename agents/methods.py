@@ -71,6 +71,8 @@ class Episode:
     Attributes:
         local_poses: each robot's local copy, rows in `problem.local_vertices(r)` order.
         inlier_mask: (M,) bool over the global edges (see the module docstring).
+        gate: (M,) the smallest layer-averaged gate of each global edge over the robots that
+            hold it (inlier_mask is gate > 0.5; 1 − gate is the outlier score).
         history: (T + 1,) F of the copies after each step (module docstring).
         step_s: (T,) wall time of each batched step [s].
         setup_s: packing the problem and the first full GNN pass [s].
@@ -78,6 +80,7 @@ class Episode:
 
     local_poses: list[np.ndarray]
     inlier_mask: np.ndarray
+    gate: np.ndarray
     history: np.ndarray
     step_s: np.ndarray
     setup_s: float
@@ -150,7 +153,11 @@ def run_episode(
     flagged = edge_mask & ~policy.inliers()
     outlier = np.zeros(problem.graph.num_edges, dtype=bool)
     outlier[edge_ids[flagged].numpy()] = True
-    return Episode(core.local_poses(0), ~outlier, np.array(history), np.array(step_s), setup_s)
+    gate = np.ones(problem.graph.num_edges)
+    np.minimum.at(gate, edge_ids[edge_mask].numpy(), policy.gate_means()[edge_mask].numpy())
+    return Episode(
+        core.local_poses(0), ~outlier, gate, np.array(history), np.array(step_s), setup_s
+    )
 
 
 def solve_prop_v1(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -66,3 +67,26 @@ def test_unknown_row_is_refused(tmp_path):
 
     with pytest.raises(ValueRangeError, match="no-op"):
         heldout.run_heldout(heldout.HeldoutConfig(rows=("oracle",), out=tmp_path))
+
+
+def test_outliers_add_the_gate_columns_to_the_learned_rows(tmp_path):
+    config = heldout.HeldoutConfig(
+        robots=(3,),
+        problems=2,
+        poses_per_robot=20,
+        rows=("no-op", "imitation", "prop-v1"),
+        out=tmp_path,
+        outlier_rate=0.5,
+    )
+    specs = heldout.cell_specs(config)
+    assert all(spec["outlier_rate"] == 0.5 for spec in specs)
+    assert "outlier_rate" not in heldout.cell_specs(dataclasses.replace(config, outlier_rate=0))[0]
+    table = heldout.run_heldout(config, progress=False).set_index("row")
+    for row in ("imitation", "prop-v1"):
+        assert 0.0 <= table.loc[row, "gate_auc"] <= 1.0
+        assert 0.0 <= table.loc[row, "gate_precision"] <= 1.0
+        assert 0.0 <= table.loc[row, "gate_recall"] <= 1.0
+    assert np.isnan(table.loc["no-op", "gate_auc"])
+    rows = json.loads(heldout.summary_json(table.reset_index()))["rows"]
+    assert "gate_auc" in rows[-1] and len(rows[-1]["gate_auc_ci"]) == 2
+    assert "ROC AUC" in (tmp_path / "heldout.md").read_text()

@@ -27,3 +27,14 @@ def test_bootstrap_interval_contains_the_statistic_and_shrinks():
     assert high_large - low_large < high - low
     assert bootstrap_ci(small, np.mean) == bootstrap_ci(small, np.mean)  # seeded
     assert np.isnan(bootstrap_ci(np.array([1.0]))[0])
+
+
+def test_roc_auc_counts_ties_as_half_and_needs_both_classes():
+    from popbench.metrics import roc_auc
+
+    assert roc_auc(np.array([0.9, 0.8, 0.1, 0.2]), np.array([True, True, False, False])) == 1.0
+    assert roc_auc(np.array([0.1, 0.9]), np.array([True, False])) == 0.0
+    assert roc_auc(np.array([0.5, 0.5, 0.5]), np.array([True, False, False])) == 0.5
+    # one positive above one of two negatives and tied with the other: (1 + ½) / 2
+    assert roc_auc(np.array([0.5, 0.2, 0.5]), np.array([True, False, False])) == 0.75
+    assert np.isnan(roc_auc(np.array([0.3]), np.array([True])))

@@ -218,6 +218,7 @@ HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
         "popbench run heldout --rows no-op,prop-v1,local-lm --checkpoint runs/a/actor.pt",
         "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus aligned-admm",
         "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
+        "popbench run heldout --problems 30 --rows no-op,prop-v1 --outlier-rate 0.1",
     ),
 )
 def heldout_command(
@@ -250,6 +251,13 @@ def heldout_command(
         "admm", help="The consensus every row goes through: admm | aligned-admm."
     ),
     out: Path = typer.Option(Path("results/heldout"), help="Output folder."),
+    outlier_rate: float = typer.Option(
+        0.0,
+        min=0.0,
+        max=1.0,
+        help="Outliers injected into every problem (share of the loop closures); adds the "
+        "learned rows' gate_auc, gate_precision and gate_recall.",
+    ),
     fresh: options.Fresh = False,
     jobs: options.Jobs = None,
     executor: options.Executor = "process",
@@ -287,6 +295,7 @@ def heldout_command(
         checkpoint=checkpoint,
         imitation_checkpoint=imitation_checkpoint,
         out=out,
+        outlier_rate=outlier_rate,
     )
     table = run_heldout(
         config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)

@@ -63,6 +63,9 @@ class HeldoutConfig:
         checkpoint: the actor of the ``prop-v1`` row (None: the committed default).
         imitation_checkpoint: the actor of the ``imitation`` row (None: the committed one).
         out: output folder.
+        outlier_rate: outliers injected into every held-out problem (popbench.outliers, the
+            loop-closure candidates; 0 = none, the cells of before); with it the learned rows
+            are scored as outlier classifiers (gate_auc, gate_precision, gate_recall).
     """
 
     noise: tuple[str, ...] = ("V2",)
@@ -74,6 +77,7 @@ class HeldoutConfig:
     checkpoint: Path | None = None
     imitation_checkpoint: Path | None = None
     out: Path = Path("results/heldout")
+    outlier_rate: float = 0.0
 
 
 def cell_specs(config: HeldoutConfig) -> list[Spec]:
@@ -97,6 +101,8 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                         "row": row,
                         "consensus": config.consensus,
                     }
+                    if config.outlier_rate > 0:  # absent otherwise: earlier cells stay valid
+                        spec["outlier_rate"] = config.outlier_rate
                     if row in LEARNED_ROWS:
                         if checkpoints[row] is None:
                             continue
@@ -122,7 +128,10 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
 def summary(frame: pd.DataFrame) -> pd.DataFrame:
     """Per (noise, robots, row): mean and median F and ATE with bootstrap 95 % CIs, and the
     ratio of the row's median F to the no-op's; ``closed_F`` / ``closed_ATE`` give the share of
-    the no-op → local-lm gap the row closes in median F and in mean ATE."""
+    the no-op → local-lm gap the row closes in median F and in mean ATE. With outliers (the
+    cells have ``gate_auc``), the learned rows add ``gate_auc`` (mean over the problems with an
+    outlier, and its CI) and ``gate_precision`` / ``gate_recall`` (pooled over the problems'
+    candidate edges: hits / flagged, hits / injected)."""
     records = []
     for (noise, robots), group in frame.groupby(["noise", "robots"], sort=False):
         medians = group.groupby("row")["F"].median()
@@ -146,8 +155,24 @@ def summary(frame: pd.DataFrame) -> pd.DataFrame:
                 "closed_F": _closed(medians, row),
                 "closed_ATE": _closed(ate_means, row),
             }
+            if "gate_auc" in values and values["gate_auc"].notna().any():
+                record.update(_gate_summary(values))
             records.append(record)
     return pd.DataFrame(records)
+
+
+def _gate_summary(values: pd.DataFrame) -> dict[str, Any]:
+    """gate_auc (mean, CI) and pooled gate_precision / gate_recall of one row's cells."""
+    auc = values["gate_auc"].dropna().to_numpy()
+    hits, flagged, true = (
+        float(values[k].sum()) for k in ("gate_hits", "gate_flagged", "gate_true")
+    )
+    return {
+        "gate_auc": float(auc.mean()),
+        "gate_auc_ci": bootstrap_ci(auc, np.mean),
+        "gate_precision": hits / flagged if flagged else 1.0,
+        "gate_recall": hits / true if true else 1.0,
+    }
 
 
 def _ratio(values: pd.Series, row: str, reference: str) -> float:
@@ -175,6 +200,7 @@ def markdown(table: pd.DataFrame) -> str:
             "| gap closed (F, ATE) |",
             "|---|---:|---:|---:|---:|---:|",
         ]
+        gated = group[group["gate_auc"].notna()] if "gate_auc" in group else group.iloc[:0]
         for record in group.itertuples():
             lines.append(
                 f"| {record.row} | {record.F_mean:.4g} | {record.F_median:.4g} "
@@ -184,6 +210,20 @@ def markdown(table: pd.DataFrame) -> str:
                 f"| {record.closed_F:.2f}, {record.closed_ATE:.2f} |"
             )
         lines.append("")
+        if len(gated):
+            lines += [
+                "Gate as an outlier classifier (loop closures; flagged: gate ≤ 0.5):",
+                "",
+                "| row | ROC AUC [95 % CI] | precision | recall |",
+                "|---|---:|---:|---:|",
+            ]
+            for record in gated.itertuples():
+                lines.append(
+                    f"| {record.row} | {record.gate_auc:.3f} [{record.gate_auc_ci[0]:.3f}, "
+                    f"{record.gate_auc_ci[1]:.3f}] | {record.gate_precision:.3f} "
+                    f"| {record.gate_recall:.3f} |"
+                )
+            lines.append("")
     return "\n".join(lines)
 
 
