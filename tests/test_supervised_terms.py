@@ -321,3 +321,13 @@ def test_new_options_round_trip_and_old_configs_read_as_today() -> None:
     assert loaded == TrainConfig()
     assert resume_differences(loaded, TrainConfig()) == []
     assert resume_differences(loaded, config) != []
+
+
+def test_the_robust_preset_is_cpu_imitation_with_outliers_and_the_gate_loss() -> None:
+    from agents.config import PRESETS
+
+    robust, plain = PRESETS["cpu-imitation-robust"], PRESETS["cpu-imitation"]
+    assert robust.experiment.outlier_rate_max == 0.2 and plain.experiment.outlier_rate_max == 0
+    assert robust.imitation.gate_weight == robust.algorithm.gate_weight == 1.0
+    assert robust.algorithm.bc_weight == plain.algorithm.bc_weight == 0.0
+    assert dataclasses.replace(robust.experiment, outlier_rate_max=0.0) == plain.experiment

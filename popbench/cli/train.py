@@ -97,8 +97,9 @@ def train_command(
     preset: Annotated[
         str,
         typer.Option(
-            help="Model/algorithm sizes: paper (5×128 GNN, §IV-A), cpu-small or cpu-imitation "
-            "(imitation of the expert first, then GA-SAC)."
+            help="Model/algorithm sizes: paper (5×128 GNN, §IV-A), cpu-small, cpu-imitation "
+            "(imitation of the expert first, then GA-SAC) or cpu-imitation-robust (the same "
+            "on problems with injected outliers, with a supervised gate loss)."
         ),
     ] = "paper",
     threads: CommandThreads = 1,
