@@ -214,6 +214,9 @@ def run_phase(session, out_dir: Path) -> None:  # noqa: ANN001 - agents.session.
     elif metrics.exists():
         metrics.unlink()
     fields = [field.name for field in dataclasses.fields(EpisodeLog)]
+    if metrics.is_file():  # a resumed phase keeps the columns its file was started with
+        with metrics.open(newline="") as handle:
+            fields = next(csv.reader(handle), fields)
 
     def save(episodes: int, done: bool) -> None:
         state = {
@@ -229,7 +232,7 @@ def run_phase(session, out_dir: Path) -> None:  # noqa: ANN001 - agents.session.
     def record(log: EpisodeLog) -> None:
         new = not metrics.exists()
         with metrics.open("a", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=fields)
+            writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
             if new:
                 writer.writeheader()
             writer.writerow(dataclasses.asdict(log))
