@@ -21,6 +21,7 @@ from popbench.harness.executors import (
     CodeMismatchError,
     Execution,
     ProcessExecutor,
+    Run,
     SerialExecutor,
     make_executor,
     run_cell,
@@ -34,7 +35,7 @@ TIME_COLUMNS = ("wall_s", "parallel_s", *GAP_COLUMNS)
 def _quick(out: Path, execution: Execution) -> pd.DataFrame:
     from popbench.harness.table1 import Table1Config, run_table1
 
-    run_table1(Table1Config.quick(out=out), progress=False, execution=execution)
+    run_table1(Table1Config.quick(out=out), Run(execution, progress=False))
     return pd.read_csv(out / "table1.csv")
 
 
@@ -77,12 +78,12 @@ def test_ray_local_instance_gives_the_same_columns(serial_table, tmp_path):
 KILLED_RUN = """
 import sys
 from pathlib import Path
-from popbench.harness.executors import Execution
+from popbench.harness.executors import Execution, Run
 from popbench.harness.table1 import Table1Config, run_table1
 if __name__ == "__main__":
     config = Table1Config(datasets=("mit",), robots=(3,), methods=("cc-pgo", "ml-pgo", "lm"),
                           iterations=200, out=Path(sys.argv[1]))
-    run_table1(config, progress=False, execution=Execution(jobs=2))
+    run_table1(config, Run(Execution(jobs=2), progress=False))
 """
 
 

@@ -9,6 +9,7 @@ from conftest import ring_g2o
 
 from popbench.harness import reports
 from popbench.harness.cache import CellCache, cell_key
+from popbench.harness.executors import Run
 from popbench.harness.paper import PAPER_TABLE1, paper_table1_cell, paper_table2_cell
 from popbench.harness.runner import run_cells
 
@@ -140,7 +141,7 @@ def test_scalability_and_trajectory_figures(tmp_path):
     config = ScalabilityConfig(
         dataset="mit", robots=(1, 3), methods=("lm", "mm-pgo"), iterations=20, out=tmp_path / "scal"
     )
-    frame = run_scalability(config, progress=False)
+    frame = run_scalability(config, Run(progress=False))
     assert sorted(frame["robots"].unique()) == [1, 3]
     assert (frame["gap"] > -1e-6).all()
     assert (tmp_path / "scal" / "scalability.png").stat().st_size > 1000

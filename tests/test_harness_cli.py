@@ -191,7 +191,7 @@ def captured_table1(monkeypatch):
     from popbench.harness import table1
 
     configs = []
-    monkeypatch.setattr(table1, "run_table1", lambda config, **_: configs.append(config) or [])
+    monkeypatch.setattr(table1, "run_table1", lambda config, run=None: configs.append(config) or [])
     return configs
 
 
@@ -214,13 +214,16 @@ def test_quick_writes_its_own_folder_and_keeps_the_options_given(capsys, capture
     assert full == Table1Config()  # the full table: results/table1, all defaults
 
 
+RAY = "(pip install 'popbench[ray]')"  # rich markup must not eat the "[ray]"
+
+
 @pytest.mark.parametrize(
     ("command", "expected"),
     [
-        (("run", "table1"), ("popbench run table1 --quick", "--fresh", "OUT/cells")),
-        (("run", "outliers"), ("popbench run outliers --rate", "--fresh", "OUT/cells")),
-        (("run", "scalability"), ("popbench run scalability", "--fresh", "OUT/cells")),
-        (("run", "heldout"), ("popbench run heldout --rows no-op,prop-v1", "--json", "--jobs")),
+        (("run", "table1"), ("popbench run table1 --quick", "--fresh", "OUT/cells", RAY)),
+        (("run", "outliers"), ("popbench run outliers --rate", "--fresh", "OUT/cells", RAY)),
+        (("run", "scalability"), ("popbench run scalability", "--fresh", "OUT/cells", RAY)),
+        (("run", "heldout"), ("popbench run heldout --rows no-op,prop-v1", "--json", RAY)),
         (
             ("plot", "trajectories"),
             ("popbench plot trajectories intel", "results/figures/trajectories_DATASET"),
@@ -280,3 +283,17 @@ def test_heldout_bad_values_are_one_line(tmp_path, capsys):
         assert code == 2, (option, err)
         _one_error_line(err, phrase)
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["table1", "outliers", "scalability", "heldout"])
+def test_every_experiment_passes_its_run_options_as_one_run(capsys, monkeypatch, command):
+    import importlib
+
+    from popbench.harness.executors import Execution, Run
+
+    runs = []
+    module = importlib.import_module(f"popbench.harness.{command}")
+    monkeypatch.setattr(module, f"run_{command}", lambda config, run: runs.append(run) or [])
+    options = ("--fresh", "--jobs", "3", "--threads", "2", "--executor", "serial")
+    assert _run(capsys, "run", command, *options)[0] == 0
+    assert runs == [Run(Execution(jobs=3, executor="serial", threads=2), fresh=True)]

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from popbench.harness.cache import CellCache
-from popbench.harness.executors import Execution
+from popbench.harness.executors import Execution, Run
 from popbench.harness.runner import run_cells
 from popbench.methods import Result
 from popbench.threads import limited_threads
@@ -115,7 +115,7 @@ def _table(out, methods: tuple[str, ...]) -> dict[str, dict]:
     from popbench.harness.table1 import Table1Config, cell_specs, run_table1
 
     config = Table1Config.quick(out=out, methods=methods)
-    run_table1(config, progress=False, execution=Execution.serial(), fresh=True)
+    run_table1(config, Run(fresh=True, progress=False))
     cache = CellCache(out / "cells")
     return {spec["method"]: cache.get(spec) for spec in cell_specs(config)}
 

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from popbench.harness import heldout
+from popbench.harness.executors import Run
 
 ROWS = ("initial", "no-op", "random", "greedy", "gn-sweep", "expert", "local-lm", "ground-truth")
 
@@ -18,7 +19,7 @@ ROWS = ("initial", "no-op", "random", "greedy", "gn-sweep", "expert", "local-lm"
 def small_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("heldout")
     config = heldout.HeldoutConfig(robots=(3,), problems=3, poses_per_robot=12, rows=ROWS, out=out)
-    return config, heldout.run_heldout(config, progress=False)
+    return config, heldout.run_heldout(config, Run(progress=False))
 
 
 def test_summary_rows_and_references(small_run):
@@ -52,7 +53,7 @@ def test_json_summary_has_the_documented_fields(small_run):
 def test_a_second_run_reuses_every_cell(small_run, monkeypatch):
     config, table = small_run
     monkeypatch.setattr(heldout, "compute_cell", lambda spec: pytest.fail("recomputed"))
-    again = heldout.run_heldout(config, progress=False)
+    again = heldout.run_heldout(config, Run(progress=False))
     assert np.allclose(again["F_mean"], table["F_mean"])
 
 
@@ -81,7 +82,7 @@ def test_outliers_add_the_gate_columns_to_the_learned_rows(tmp_path):
     specs = heldout.cell_specs(config)
     assert all(spec["outlier_rate"] == 0.5 for spec in specs)
     assert "outlier_rate" not in heldout.cell_specs(dataclasses.replace(config, outlier_rate=0))[0]
-    table = heldout.run_heldout(config, progress=False).set_index("row")
+    table = heldout.run_heldout(config, Run(progress=False)).set_index("row")
     for row in ("imitation", "prop-v1"):
         assert 0.0 <= table.loc[row, "gate_auc"] <= 1.0
         assert 0.0 <= table.loc[row, "gate_precision"] <= 1.0

@@ -61,12 +61,12 @@ def test_quick_table_has_the_columns_the_times_and_the_figures(tmp_path):
     from tests.conftest import require_dataset
 
     require_dataset("mit")
-    from popbench.harness.executors import Execution
+    from popbench.harness.executors import Run
     from popbench.harness.table1 import Table1Config, run_table1
 
     methods = ("cc-pgo", "ml-pgo", "mm-pgo", "local-lm", "prop-v2")
     config = Table1Config.quick(out=tmp_path, methods=methods, iterations=30, init="chordal")
-    run_table1(config, progress=False, execution=Execution.serial())
+    run_table1(config, Run(progress=False))
     table = pd.read_csv(tmp_path / "table1.csv")
     assert set(GAP_COLUMNS) <= set(table.columns) and "F_chordal_star" in table
     assert table["time_gap_1e-1_s"].notna().any()

@@ -3,17 +3,30 @@
 Lists are comma-separated (``--datasets intel,mit --robots 3,7``); every parser raises
 :class:`~popbench.errors.ValueRangeError` (one line, exit status 2) on a bad value. The
 ``Annotated`` aliases (:data:`Jobs`, :data:`Executor`, :data:`Address`, :data:`Threads`,
-:data:`Fresh`) give every experiment the same option with the same help.
+:data:`Fresh`, :data:`Iterations`, :data:`Out`) give every experiment the same option with the
+same help; :func:`runs_cells` gives
+them to an experiment command at once, as one :class:`~popbench.harness.executors.Run`.
 """
 
 from __future__ import annotations
 
-from typing import Annotated
+import functools
+import inspect
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 
 from popbench.errors import ValueRangeError
-from popbench.harness.executors import ADDRESS_HELP, EXECUTOR_HELP, JOBS_HELP, THREADS_HELP
+from popbench.harness.executors import (
+    ADDRESS_HELP,
+    EXECUTOR_HELP,
+    JOBS_HELP,
+    THREADS_HELP,
+    Run,
+)
 
 PARTITIONS = ("metis", "contiguous")
 ROBUST_KERNELS = ("huber", "gm", "welsch")
@@ -42,11 +55,50 @@ INIT_HELP = "Initial estimate for every method: odometry | chordal | given."
 Jobs = Annotated[
     int | None, typer.Option("--jobs", "-j", min=1, help=JOBS_HELP, show_default=False)
 ]
-Executor = Annotated[str, typer.Option(help=EXECUTOR_HELP)]
+Executor = Annotated[str, typer.Option(help=escape(EXECUTOR_HELP))]  # keep its "[ray]"
 Address = Annotated[str | None, typer.Option(help=ADDRESS_HELP, show_default=False)]
 Threads = Annotated[int, typer.Option(min=1, help=THREADS_HELP)]
 CommandThreads = Annotated[int, typer.Option(min=1, help=COMMAND_THREADS_HELP)]
 Fresh = Annotated[bool, typer.Option("--fresh", help=FRESH_HELP)]
+Iterations = Annotated[int, typer.Option(min=1, help="Rounds for the iterative methods.")]
+Out = Annotated[Path, typer.Option(help="Output folder.")]
+
+
+# The options of how an experiment's cells run, in --help's order, with their defaults.
+RUN_OPTIONS = (
+    ("fresh", Fresh, False),
+    ("jobs", Jobs, None),
+    ("executor", Executor, "process"),
+    ("address", Address, None),
+    ("threads", Threads, 1),
+)
+
+
+def runs_cells(command: Callable[..., None]) -> Callable[..., None]:
+    """An experiment command (keyword-only parameters) with the options of :data:`RUN_OPTIONS`
+    (--fresh, --jobs, --executor, --address, --threads) in place of its parameter ``run``, which
+    receives them as one :class:`~popbench.harness.executors.Run` (typer reads the new
+    ``__signature__``)."""
+    signature = inspect.signature(command, eval_str=True)
+    shared = [
+        inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=kind)
+        for name, kind, default in RUN_OPTIONS
+    ]
+    parameters = []
+    for parameter in signature.parameters.values():
+        parameters.extend(shared if parameter.name == "run" else [parameter])
+
+    @functools.wraps(command)
+    def with_run(**values: Any) -> None:
+        fresh = values.pop("fresh")
+        how = execution(
+            values.pop("jobs"), values.pop("executor"), values.pop("address"), values.pop("threads")
+        )
+        command(**values, run=Run(execution=how, fresh=fresh))
+
+    with_run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
+    with_run.__annotations__ = {p.name: p.annotation for p in parameters}
+    return with_run
 
 
 def epilog(*examples: str) -> str:

@@ -17,6 +17,7 @@ import typer
 
 from popbench.cli import options
 from popbench.errors import ValueRangeError
+from popbench.harness.executors import Run
 
 app = typer.Typer(
     help="Run the paper's experiments; write CSV, markdown, LaTeX and figures.",
@@ -34,7 +35,9 @@ app = typer.Typer(
         "--out results/mine",
     ),
 )
+@options.runs_cells
 def table1_command(
+    *,
     datasets: str = typer.Option(
         None,
         help="Datasets, registered names or .g2o paths (default: the paper's eight; --quick: mit).",
@@ -56,9 +59,7 @@ def table1_command(
         show_default=False,
     ),
     seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
-    init: str = typer.Option(
-        "odometry", help="Initial estimate for every method: odometry | chordal | given."
-    ),
+    init: str = typer.Option("odometry", help=options.INIT_HELP),
     partition: str = typer.Option("metis", help="metis | contiguous."),
     out: Path = typer.Option(
         None,
@@ -71,11 +72,7 @@ def table1_command(
         help="A small subset (mit, n = 3, 100 iterations) that finishes in about a minute; "
         "--datasets, --robots, --iterations and the other options given replace its defaults.",
     ),
-    fresh: options.Fresh = False,
-    jobs: options.Jobs = None,
-    executor: options.Executor = "process",
-    address: options.Address = None,
-    threads: options.Threads = 1,
+    run: Run,
 ) -> None:
     """The paper's Table I: datasets × robots × methods, with F* and the gap F/F* − 1.
 
@@ -102,9 +99,7 @@ def table1_command(
     if out is not None:
         settings["out"] = out
     config = Table1Config.quick(**settings) if quick else Table1Config(**settings)
-    frame = run_table1(
-        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
-    )
+    frame = run_table1(config, run)
     typer.echo(
         f"{len(frame)} cells -> {config.out}/table1.csv, table1.md, table1.tex, "
         "table1.png, table1.pdf, profile-*.png/.pdf"
@@ -118,13 +113,15 @@ def table1_command(
         "popbench run outliers --datasets intel --seeds 0 --iterations 100 --out results/o",
     ),
 )
+@options.runs_cells
 def outliers_command(
+    *,
     rate: str = typer.Option("0.1", help="Outlier rates (fractions), e.g. 0.025,0.05,0.1."),
     datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
     methods: str = typer.Option("prop-v1,mm-pgo,gnc", help="Methods (need an inlier mask)."),
     robots: int = typer.Option(7, min=1, help="Team size."),
     seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
-    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    iterations: options.Iterations = 1000,
     kernel: str = typer.Option("gm", help="mm-pgo robust kernel: huber | gm | welsch."),
     init: str = typer.Option(
         "odometry", help="odometry | chordal (made from the corrupted data) | given (the file's)."
@@ -134,12 +131,8 @@ def outliers_command(
         help="Edges that may be corrupted: loops (loop closures; odometry, incl. cut odometry, "
         "never) | paper (loop closures + every inter-robot edge: breaks the odometry start).",
     ),
-    out: Path = typer.Option(Path("results/outliers"), help="Output folder."),
-    fresh: options.Fresh = False,
-    jobs: options.Jobs = None,
-    executor: options.Executor = "process",
-    address: options.Address = None,
-    threads: options.Threads = 1,
+    out: options.Out = Path("results/outliers"),
+    run: Run,
 ) -> None:
     """The paper's Table II: F, outlier precision and recall with corrupted loop closures.
 
@@ -161,9 +154,7 @@ def outliers_command(
         candidates=options.names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
         out=out,
     )
-    frame = run_outliers(
-        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
-    )
+    frame = run_outliers(config, run)
     typer.echo(f"{len(frame)} cells -> {config.out}/outliers.csv, outliers.md, outliers.tex")
 
 
@@ -174,18 +165,16 @@ def outliers_command(
         "popbench run scalability --dataset intel --robots 1,3,7 --methods mm-pgo --out results/s",
     ),
 )
+@options.runs_cells
 def scalability_command(
+    *,
     dataset: str = typer.Option("m3500", help="Dataset."),
     robots: str = typer.Option("1,2,3,5,7,10,14,20,28,35,50,70", help="Team sizes."),
     methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods."),
-    iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
+    iterations: options.Iterations = 1000,
     init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
-    out: Path = typer.Option(Path("results/scalability"), help="Output folder."),
-    fresh: options.Fresh = False,
-    jobs: options.Jobs = None,
-    executor: options.Executor = "process",
-    address: options.Address = None,
-    threads: options.Threads = 1,
+    out: options.Out = Path("results/scalability"),
+    run: Run,
 ) -> None:
     """The paper's Fig. 5: F and time against team size, actors replicated.
 
@@ -202,9 +191,7 @@ def scalability_command(
         init=options.start(init),
         out=out,
     )
-    frame = run_scalability(
-        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
-    )
+    frame = run_scalability(config, run)
     typer.echo(f"{len(frame)} cells -> {config.out}/scalability.csv, scalability.png/.pdf")
 
 
@@ -221,7 +208,9 @@ HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
         "popbench run heldout --problems 30 --rows no-op,prop-v1 --outlier-rate 0.1",
     ),
 )
+@options.runs_cells
 def heldout_command(
+    *,
     noise: str = typer.Option("V2", help="Synthetic noise levels: V1, V2, V3 (comma list)."),
     robots: str = typer.Option("7", help="Team sizes (comma list)."),
     problems: int = typer.Option(
@@ -250,7 +239,7 @@ def heldout_command(
     consensus: str = typer.Option(
         "admm", help="The consensus every row goes through: admm | aligned-admm."
     ),
-    out: Path = typer.Option(Path("results/heldout"), help="Output folder."),
+    out: options.Out = Path("results/heldout"),
     outlier_rate: float = typer.Option(
         0.0,
         min=0.0,
@@ -258,11 +247,7 @@ def heldout_command(
         help="Outliers injected into every problem (share of the loop closures); adds the "
         "learned rows' gate_auc, gate_precision and gate_recall.",
     ),
-    fresh: options.Fresh = False,
-    jobs: options.Jobs = None,
-    executor: options.Executor = "process",
-    address: options.Address = None,
-    threads: options.Threads = 1,
+    run: Run,
     json_output: bool = typer.Option(
         False, "--json", help="Print the summary as one JSON object, the last line on stdout."
     ),
@@ -297,9 +282,7 @@ def heldout_command(
         out=out,
         outlier_rate=outlier_rate,
     )
-    table = run_heldout(
-        config, fresh=fresh, execution=options.execution(jobs, executor, address, threads)
-    )
+    table = run_heldout(config, run)
     if json_output:
         typer.echo(summary_json(table))
     else:

@@ -90,6 +90,17 @@ class Execution:
 
 
 @dataclasses.dataclass(frozen=True)
+class Run:
+    """How an experiment runs: where its cells run (``execution``, default serially in this
+    process), whether every cell is recomputed (``fresh``: the cached ones are ignored and
+    overwritten) and whether a progress bar shows (``progress``)."""
+
+    execution: Execution = dataclasses.field(default_factory=Execution.serial)
+    fresh: bool = False
+    progress: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
 class CellTask:
     """One cell for :func:`run_cell`: ``compute`` must be importable (a module-level function)
     for the process and Ray executors; ``cache_folder`` None leaves the writing to the driver;

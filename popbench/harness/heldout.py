@@ -13,6 +13,7 @@ Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from pathlib import Path
@@ -22,9 +23,8 @@ import numpy as np
 import pandas as pd
 
 from popbench.harness.cache import code_fingerprint
-from popbench.harness.executors import Execution
-from popbench.harness.manifest import write_manifest
-from popbench.harness.runner import Spec, run_experiment
+from popbench.harness.executors import Row, Run, Spec
+from popbench.harness.runner import run_experiment
 from popbench.methods import load_object
 from popbench.metrics import bootstrap_ci
 from popbench.reconcile import DEFAULT_CONSENSUS
@@ -251,32 +251,31 @@ def summary_json(table: pd.DataFrame) -> str:
     return json.dumps({"rows": records})
 
 
-def run_heldout(
-    config: HeldoutConfig,
-    *,
-    progress: bool = True,
-    fresh: bool = False,
-    execution: Execution | None = None,
-) -> pd.DataFrame:
-    """Compute (or reuse) every cell through ``execution`` (default: serially in this process),
-    then write ``heldout.csv`` (one line per problem and row), ``summary.csv``, ``heldout.md``,
-    ``heldout.png``/``.pdf`` and ``manifest.json`` into ``config.out``; returns the summary."""
-    started = time.perf_counter()
-    unknown = sorted(set(config.rows) - set(ROWS))
-    if unknown:
-        from popbench.errors import ValueRangeError
+def run_heldout(config: HeldoutConfig, run: Run | None = None) -> pd.DataFrame:
+    """Compute (or reuse) every cell as ``run`` says (default: serially in this process;
+    :func:`popbench.harness.runner.run_experiment`), then write ``heldout.csv`` (one line per
+    problem and row), ``summary.csv``, ``heldout.md``, ``heldout.png``/``.pdf`` and
+    ``manifest.json`` into ``config.out``; returns the summary."""
 
-        raise ValueRangeError("heldout rows", ",".join(unknown), ", ".join(ROWS))
-    specs = cell_specs(config)
-    rows, ran = run_experiment(
-        specs, compute_cell, config.out, execution=execution, progress=progress, fresh=fresh
-    )
+    def cells() -> list[Spec]:
+        unknown = sorted(set(config.rows) - set(ROWS))
+        if unknown:
+            from popbench.errors import ValueRangeError
+
+            raise ValueRangeError("heldout rows", ",".join(unknown), ", ".join(ROWS))
+        return cell_specs(config)
+
+    write = functools.partial(write_heldout, config)
+    return run_experiment(config.out, cells, compute_cell, write, run)
+
+
+def write_heldout(config: HeldoutConfig, rows: list[Row]) -> pd.DataFrame:
+    """The per-problem table of ``rows``, its summary (returned) and figure, written into
+    ``config.out``."""
     frame = pd.DataFrame(rows)
     table = summary(frame)
-    config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "heldout.csv", index=False, float_format="%.10g")
     table.to_csv(config.out / "summary.csv", index=False, float_format="%.10g")
     (config.out / "heldout.md").write_text(markdown(table))
     figure(frame, config.out / "heldout")
-    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return table

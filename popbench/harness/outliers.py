@@ -10,7 +10,7 @@ estimate is then made from the *corrupted* measurements, as a real system would.
 from __future__ import annotations
 
 import dataclasses
-import time
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +19,9 @@ import pandas as pd
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, reports
 from popbench.harness.cache import provenance
-from popbench.harness.executors import Execution
-from popbench.harness.manifest import write_manifest
+from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table2_cell
-from popbench.harness.runner import Spec, run_experiment
+from popbench.harness.runner import run_experiment
 from popbench.initial import with_start
 from popbench.methods import Budget, get_method, method_options
 from popbench.outliers import candidate_mask, inject_outliers, precision_recall
@@ -114,22 +113,21 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
     }
 
 
-def run_outliers(
-    config: OutliersConfig,
-    *,
-    progress: bool = True,
-    fresh: bool = False,
-    execution: Execution | None = None,
-) -> pd.DataFrame:
-    """Compute (or reuse; all recomputed if ``fresh``) every cell through ``execution``
-    (default: serially in this process); write ``outliers.csv``, ``.md``, ``.tex`` and the
-    manifest. The datasets and team size are checked first."""
-    started = time.perf_counter()
-    problems.check_inputs(config.datasets, (config.robots,))
-    specs = cell_specs(config)
-    rows, ran = run_experiment(
-        specs, compute_cell, config.out, execution=execution, progress=progress, fresh=fresh
-    )
+def run_outliers(config: OutliersConfig, run: Run | None = None) -> pd.DataFrame:
+    """Compute (or reuse) every cell as ``run`` says (default: serially in this process;
+    :func:`popbench.harness.runner.run_experiment`); write ``outliers.csv``, ``.md``, ``.tex``
+    and the manifest. The datasets and team size are checked first."""
+
+    def cells() -> list[Spec]:
+        problems.check_inputs(config.datasets, (config.robots,))
+        return cell_specs(config)
+
+    write = functools.partial(write_outliers, config)
+    return run_experiment(config.out, cells, compute_cell, write, run)
+
+
+def write_outliers(config: OutliersConfig, rows: list[Row]) -> pd.DataFrame:
+    """Table II of the cells' rows beside the paper's numbers, written into ``config.out``."""
     frame = pd.DataFrame(rows)
     paper = [
         paper_table2_cell(d, r, m)
@@ -137,9 +135,7 @@ def run_outliers(
     ]
     for k, name in enumerate(("paper_F", "paper_precision", "paper_recall")):
         frame[name] = [cell[k] if cell else float("nan") for cell in paper]
-    config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "outliers.csv", index=False, float_format="%.10g")
     (config.out / "outliers.md").write_text(reports.outliers_markdown(frame))
     (config.out / "outliers.tex").write_text(reports.outliers_latex(frame))
-    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame

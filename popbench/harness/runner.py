@@ -7,7 +7,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from rich.console import Console
 from rich.progress import (
@@ -24,12 +24,17 @@ from popbench.harness.executors import (
     CellTask,
     Execution,
     Row,
+    Run,
     SerialExecutor,
     Spec,
     make_executor,
 )
+from popbench.harness.manifest import write_manifest
 
 RUNNING_SHOWN = 3  # running cells named in the progress bar; more are counted
+
+
+Table = TypeVar("Table")
 
 
 def describe(spec: Spec) -> str:
@@ -176,20 +181,33 @@ def execution_summary(execution: Execution, cache: CellCache, specs: Sequence[Sp
 
 
 def run_experiment(
-    specs: Sequence[Spec],
-    compute: Callable[[Spec], Row],
     out: Path,
-    *,
-    execution: Execution | None = None,
-    progress: bool = True,
-    fresh: bool = False,
+    cells: Callable[[], Sequence[Spec]],
+    compute: Callable[[Spec], Row],
+    write: Callable[[list[Row]], Table],
+    run: Run | None = None,
     depends: Callable[[Spec], Spec | None] | None = None,
-) -> tuple[list[Row], dict]:
-    """Rows of all ``specs`` (:func:`run_cells`, cached under ``out/cells``; ``depends`` as
-    there) and the manifest's ``execution`` block of the run (:func:`execution_summary`)."""
-    execution = execution or Execution.serial()
+) -> Table:
+    """Run an experiment into the folder ``out`` and return its table: ``cells()`` checks the
+    inputs and lists the cells, which are computed or reused as ``run`` says (:func:`run_cells`,
+    cached under ``out/cells``; ``depends`` as there); ``write(rows)`` writes the outputs into
+    ``out`` (created first) and returns the table; ``manifest.json`` records the wall time of
+    all of it and how the cells ran (:func:`execution_summary`)."""
+    run = run or Run()
+    started = time.perf_counter()
+    specs = cells()
     cache = CellCache(out / "cells")
     rows = run_cells(
-        specs, compute, cache, execution=execution, progress=progress, fresh=fresh, depends=depends
+        specs,
+        compute,
+        cache,
+        execution=run.execution,
+        progress=run.progress,
+        fresh=run.fresh,
+        depends=depends,
     )
-    return rows, execution_summary(execution, cache, specs)
+    ran = execution_summary(run.execution, cache, specs)
+    out.mkdir(parents=True, exist_ok=True)
+    table = write(rows)
+    write_manifest(out, wall_s=time.perf_counter() - started, execution=ran)
+    return table

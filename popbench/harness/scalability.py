@@ -7,18 +7,16 @@ n = 70). Cells are Table I cells (same problem construction, same measurements).
 from __future__ import annotations
 
 import dataclasses
-import time
+import functools
 from pathlib import Path
 
 import pandas as pd
 
 from popbench.harness import problems, table1
-from popbench.harness.cache import provenance
-from popbench.harness.executors import Execution
-from popbench.harness.manifest import write_manifest
+from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.profiles import HISTORY_FIELDS
-from popbench.harness.runner import Spec, run_experiment
+from popbench.harness.runner import run_experiment
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
 METHODS = ("mm-pgo", "prop-v1", "prop-v2")  # the paper's Fig. 5
@@ -39,48 +37,43 @@ class ScalabilityConfig:
 
 
 def cell_specs(config: ScalabilityConfig) -> list[Spec]:
-    return [
-        {
-            **provenance(config.dataset, method),
-            "experiment": "table1",
-            "dataset": config.dataset,
-            "robots": robots,
-            "method": method,
-            "seed": config.seed,
-            "iterations": config.iterations,
-            "init": config.init,
-            "partition": config.partition,
-        }
-        for robots in config.robots
-        for method in config.methods
-    ]
-
-
-def run_scalability(
-    config: ScalabilityConfig,
-    *,
-    progress: bool = True,
-    fresh: bool = False,
-    execution: Execution | None = None,
-) -> pd.DataFrame:
-    """Compute (or reuse; all recomputed if ``fresh``) every cell through ``execution``
-    (default: serially in this process); write ``scalability.csv``,
-    ``scalability.png``/``.pdf``. The dataset and team sizes are checked first."""
-    started = time.perf_counter()
-    problems.check_inputs((config.dataset,), config.robots)
-    specs = cell_specs(config)
-    everything = [table1.optimum_spec(config.dataset), *specs]
-    computed, ran = run_experiment(
-        everything, table1.compute, config.out, execution=execution, progress=progress, fresh=fresh
+    """Table I's cells of the dataset, one per team size and method, in that order."""
+    return table1.cell_specs(
+        table1.Table1Config(
+            datasets=(config.dataset,),
+            robots=config.robots,
+            methods=config.methods,
+            iterations=config.iterations,
+            seeds=(config.seed,),
+            init=config.init,
+            partition=config.partition,
+        )
     )
+
+
+def run_scalability(config: ScalabilityConfig, run: Run | None = None) -> pd.DataFrame:
+    """Compute (or reuse) the optimum and every cell as ``run`` says (default: serially in this
+    process; :func:`popbench.harness.runner.run_experiment`); write ``scalability.csv``,
+    ``scalability.png``/``.pdf`` and the manifest. The dataset and team sizes are checked
+    first."""
+
+    def cells() -> list[Spec]:
+        problems.check_inputs((config.dataset,), config.robots)
+        return [table1.optimum_spec(config.dataset), *cell_specs(config)]
+
+    write = functools.partial(write_scalability, config)
+    return run_experiment(config.out, cells, table1.compute, write, run)
+
+
+def write_scalability(config: ScalabilityConfig, computed: list[Row]) -> pd.DataFrame:
+    """The table of the optimum's and the cells' rows (in :func:`run_scalability`'s order) and
+    its figure, written into ``config.out``."""
     optimum = computed[0]["F_star"]
     frame = pd.DataFrame(computed[1:]).drop(columns=list(HISTORY_FIELDS), errors="ignore")
     frame["F_star"] = optimum
     frame["gap"] = frame["F"] / optimum - 1.0
-    config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "scalability.csv", index=False, float_format="%.10g")
     scalability_figure(frame, config.out / "scalability")
-    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame
 
 

@@ -11,6 +11,7 @@ time of each entry, from which the times to a relative gap of 1e-1, 1e-2 and 1e-
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from pathlib import Path
 from typing import Any
@@ -20,12 +21,11 @@ import pandas as pd
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, profiles, reports
 from popbench.harness.cache import provenance
-from popbench.harness.executors import Execution
-from popbench.harness.manifest import write_manifest
+from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table1_cell
 from popbench.harness.profiles import GAP_COLUMNS
 from popbench.harness.refining import refined_spec, solve_cell
-from popbench.harness.runner import Spec, run_experiment
+from popbench.harness.runner import run_experiment
 from popbench.methods import Budget, Result, distributed_methods
 
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
@@ -136,35 +136,28 @@ def cell_row(spec: Spec, problem: DistributedProblem, result: Result) -> dict[st
     }
 
 
-def run_table1(
-    config: Table1Config,
-    *,
-    progress: bool = True,
-    fresh: bool = False,
-    execution: Execution | None = None,
-) -> pd.DataFrame:
-    """Compute (or reuse; all recomputed if ``fresh``) every cell, then write ``table1.csv``,
+def run_table1(config: Table1Config, run: Run | None = None) -> pd.DataFrame:
+    """Compute (or reuse) the optima and every cell as ``run`` says (default: serially in this
+    process; :func:`popbench.harness.runner.run_experiment`), then write ``table1.csv``,
     ``table1.md``, ``table1.tex``, ``table1.png``/``.pdf``, the convergence profiles
     ``profile-DATASET-nN.png``/``.pdf`` (:mod:`popbench.harness.profiles`) and
-    ``manifest.json`` into ``config.out``. The optima and the cells run together through
-    ``execution`` (default: serially in this process).
+    ``manifest.json`` into ``config.out``.
 
     Every dataset is loaded and every team size checked against its poses before anything is
     computed (:func:`popbench.harness.problems.check_inputs`).
     """
-    started = time.perf_counter()
-    problems.check_inputs(config.datasets, config.robots)
-    specs = cell_specs(config)
-    everything = [*(optimum_spec(d) for d in config.datasets), *specs]
-    computed, ran = run_experiment(
-        everything,
-        compute,
-        config.out,
-        execution=execution,
-        progress=progress,
-        fresh=fresh,
-        depends=refined_spec,
-    )
+
+    def cells() -> list[Spec]:
+        problems.check_inputs(config.datasets, config.robots)
+        return [*(optimum_spec(d) for d in config.datasets), *cell_specs(config)]
+
+    write = functools.partial(write_table1, config)
+    return run_experiment(config.out, cells, compute, write, run, depends=refined_spec)
+
+
+def write_table1(config: Table1Config, computed: list[Row]) -> pd.DataFrame:
+    """Table I of the optima's and the cells' rows (in :func:`run_table1`'s order), written
+    into ``config.out``."""
     optima = {row["dataset"]: row for row in computed[: len(config.datasets)]}
     rows = computed[len(config.datasets) :]
     frame = pd.DataFrame(rows)
@@ -203,11 +196,9 @@ def run_table1(
         *GAP_COLUMNS,
     ]
     frame = frame[columns]
-    config.out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(config.out / "table1.csv", index=False, float_format="%.10g")
     (config.out / "table1.md").write_text(reports.table1_markdown(frame))
     (config.out / "table1.tex").write_text(reports.table1_latex(frame))
     reports.table1_figure(frame, config.out / "table1")
     profiles.profile_figures(rows, optima, config.out)
-    write_manifest(config.out, wall_s=time.perf_counter() - started, execution=ran)
     return frame
