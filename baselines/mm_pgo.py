@@ -50,7 +50,29 @@ from popbench.graph import EdgeKind, PoseGraph
 from popbench.methods import Budget, Result
 from popbench.outliers import precision_recall
 
-ROBUST_KINDS = (EdgeKind.LOOP, EdgeKind.INTER_RELATIVE, EdgeKind.INTER_LOOP)
+
+@dataclasses.dataclass(frozen=True)
+class RobustMode:
+    """Where a robust kernel acts and its default scale (:mod:`baselines.robust`).
+
+    Attributes:
+        kinds: the edge kinds under the kernel (the others keep weight 1, are never flagged).
+        scale: the kernel scale ``c`` used when ``kernel_scale`` is not given.
+    """
+
+    kinds: tuple[EdgeKind, ...]
+    scale: float
+
+
+ROBUST_MODES: dict[str, RobustMode] = {
+    # MM-PGO's own code: the kernel on the inter-node edges only (DPGOProblem::evaluate_E over
+    # the inter-node incidence mB_[1]: cut odometry and inter-robot loop closures), c = 0.25.
+    "authors": RobustMode((EdgeKind.INTER_RELATIVE, EdgeKind.INTER_LOOP), robust.AUTHORS_SCALE),
+    # The project's earlier reading: intra-robot loop closures too, c = χ²₃(0.99).
+    "project": RobustMode(
+        (EdgeKind.LOOP, EdgeKind.INTER_RELATIVE, EdgeKind.INTER_LOOP), robust.DEFAULT_SCALE
+    ),
+}
 
 # Adaptive restart of AMM-PGO (REFERENCES §3.5).
 ETA_SLOW, ETA_FAST = 5e-4, 2.5e-2
@@ -729,32 +751,46 @@ def to_frame_of(poses: np.ndarray, vertex: int, target: np.ndarray) -> np.ndarra
     return moved
 
 
-def edge_weights(graph: PoseGraph, poses: np.ndarray, kernel: str, scale: float) -> np.ndarray:
-    """IRLS weights ``(M,)`` at ``poses``: ``ρ'(F_e)`` on robust kinds, 1 on odometry.
-
-    **Robust kernels** (:mod:`baselines.robust`) on loop-closure and inter-robot edges (kinds LOOP,
-    INTER_RELATIVE, INTER_LOOP; odometry keeps weight 1): IRLS weights ``w_e = ρ'(s_e)`` of the
-    unweighted chordal cost ``s_e = F_e`` multiply ``κ_e, τ_e``. They are recomputed from the
-    current iterate before the first iteration and every ``weight_interval`` (20) iterations
-    (static between updates: the weighted quadratic is minimised by MM; at an update each robot
-    refactorises ``H_α`` (at the current iterate) and ``L_α`` and the acceleration state is
-    reset, since the surrogated objective changed). ``inlier_mask``: an edge of a robust kind is an
-    inlier when its weight at the final estimate is at least the weight at ``s = c``
-    (:func:`robust.flag_threshold`), i.e. when its final ``s ≤ c``; odometry is always an inlier;
-    None for the kernel ``none``. When ``problem.outlier_mask`` is given, ``extras`` has
-    ``precision``/``recall`` of the flagged edges.
-    """
+def robust_costs(graph: PoseGraph, poses: np.ndarray, kinds: tuple[EdgeKind, ...]) -> np.ndarray:
+    """``s_e = F_e`` ``(M,)`` at ``poses`` on the edges of ``kinds``, 0 elsewhere."""
     kappa, tau = objective.weights(graph.information)
     terms = edge_terms(poses, edge_data(graph.tails, graph.heads, graph.measurements))
-    robust_edge = np.isin(graph.kinds, np.array(ROBUST_KINDS, dtype=np.int8))
-    return np.where(robust_edge, robust.weights(kernel, edge_costs(terms, kappa, tau), scale), 1.0)
+    under = np.isin(graph.kinds, np.array(kinds, dtype=np.int8))
+    return np.where(under, edge_costs(terms, kappa, tau), 0.0)
+
+
+def edge_weights(
+    graph: PoseGraph, poses: np.ndarray, kernel: str, scale: float, kinds: tuple[EdgeKind, ...]
+) -> np.ndarray:
+    """IRLS weights ``(M,)`` at ``poses``: ``ρ'(F_e)`` on the edges of ``kinds``, 1 elsewhere.
+
+    **Robust kernels** (:mod:`baselines.robust`) on the edge kinds of the robust mode
+    (:data:`ROBUST_MODES`: ``"authors"``, as MM-PGO's own code, the inter-robot edges
+    INTER_RELATIVE and INTER_LOOP; ``"project"`` also the intra-robot loop closures LOOP; the
+    others keep weight 1): IRLS weights ``w_e = ρ'(s_e)`` of the unweighted chordal cost
+    ``s_e = F_e`` multiply ``κ_e, τ_e``. They are recomputed from the current iterate before the
+    first iteration and every ``weight_interval`` (20) iterations (static between updates: the
+    weighted quadratic is minimised by MM; at an update each robot refactorises ``H_α`` (at the
+    current iterate) and ``L_α`` and the acceleration state is reset, since the surrogated
+    objective changed; MM-PGO's code instead re-evaluates the weights in every gradient, under a
+    majoriser built with weight 1). ``inlier_mask``: an edge under the kernel is an outlier when
+    its final weight is below the weight at ``s = flag_bound``, i.e. its final
+    ``s > flag_bound`` (:func:`robust.flagged`; MM-PGO's code flags nothing, the rule is the
+    project's); every other edge is an inlier (in the ``"authors"`` mode an intra-robot loop
+    closure is never flagged); None for the kernel ``none``. When ``problem.outlier_mask`` is
+    given, ``extras`` has ``precision``/``recall`` of the flagged edges.
+    """
+    under = np.isin(graph.kinds, np.array(kinds, dtype=np.int8))
+    return np.where(under, robust.weights(kernel, robust_costs(graph, poses, kinds), scale), 1.0)
 
 
 def solve(
     problem: DistributedProblem,
     budget: Budget | None = None,
     kernel: str = "none",
-    kernel_scale: float = robust.DEFAULT_SCALE,
+    kernel_scale: float | None = None,
+    robust_mode: str = "authors",
+    flag_bound: float = robust.INLIER_BOUND,
     accelerated: bool = True,
     weight_interval: int = 20,
     hessian_interval: int = 10,
@@ -769,7 +805,11 @@ def solve(
             iterations start from its start, ``graph.poses``.
         budget: iterations (default 1000) and optional wall-clock seconds.
         kernel: ``"none"``, ``"huber"``, ``"gm"`` or ``"welsch"``.
-        kernel_scale: ``c`` in units of the whitened squared residual (default χ²₃ 0.99).
+        kernel_scale: ``c`` in units of the weighted squared residual ``s``; None: the robust
+            mode's (0.25 for ``"authors"``, χ²₃(0.99) for ``"project"``).
+        robust_mode: the edges under the kernel (:data:`ROBUST_MODES`, :func:`edge_weights`).
+        flag_bound: the ``s`` above which an edge under the kernel is flagged
+            (:data:`robust.INLIER_BOUND`).
         accelerated: Nesterov acceleration with adaptive restart (AMM-PGO) or plain MM-PGO.
         weight_interval: iterations between robust-weight updates.
         hessian_interval: iterations between checks of ``H_α``'s drift (refactorised at the
@@ -798,11 +838,21 @@ def solve(
     start = time.perf_counter()
     budget = budget or Budget()
     robust.check_kernel(kernel)
-    if kernel_scale <= 0 or weight_interval < 1 or hessian_interval < 0 or hessian_tolerance < 0:
+    if robust_mode not in ROBUST_MODES:
+        raise ValueRangeError("mm-pgo robust mode", robust_mode, " | ".join(ROBUST_MODES))
+    mode = ROBUST_MODES[robust_mode]
+    kernel_scale = mode.scale if kernel_scale is None else kernel_scale
+    if (
+        kernel_scale <= 0
+        or flag_bound <= 0
+        or weight_interval < 1
+        or hessian_interval < 0
+        or hessian_tolerance < 0
+    ):
         raise ValueRangeError(
-            "kernel_scale, weight_interval, hessian_interval, hessian_tolerance",
-            (kernel_scale, weight_interval, hessian_interval, hessian_tolerance),
-            "c > 0, interval ≥ 1, interval ≥ 0, tolerance ≥ 0",
+            "kernel_scale, flag_bound, weight_interval, hessian_interval, hessian_tolerance",
+            (kernel_scale, flag_bound, weight_interval, hessian_interval, hessian_tolerance),
+            "c > 0, bound > 0, interval ≥ 1, interval ≥ 0, tolerance ≥ 0",
         )
     graph = problem.graph
     start_poses = graph.poses.copy()
@@ -826,7 +876,8 @@ def solve(
         tic = time.perf_counter()
         if kernel != "none" and iterations % weight_interval == 0:
             team.set_weights(
-                kappa * (weights := edge_weights(graph, poses.poses, kernel, kernel_scale)),
+                kappa
+                * (weights := edge_weights(graph, poses.poses, kernel, kernel_scale, mode.kinds)),
                 tau * weights,
                 terms if hessian_interval > 0 else None,
             )
@@ -878,6 +929,7 @@ def solve(
         "init": problem.start,
         "kernel": kernel,
         "kernel_scale": kernel_scale,
+        "robust_mode": robust_mode,
         "accelerated": accelerated,
         "hard_restarts": hard_restarts,
         "soft_restarts": soft_restarts,
@@ -887,8 +939,9 @@ def solve(
     }
     inlier_mask = None
     if kernel != "none":
-        final_weights = edge_weights(graph, poses, kernel, kernel_scale)
-        inlier_mask = final_weights >= robust.flag_threshold(kernel, kernel_scale)
+        final_weights = edge_weights(graph, poses, kernel, kernel_scale, mode.kinds)
+        # s = 0 off the kernel's kinds: never flagged (flag_bound > 0)
+        inlier_mask = ~robust.flagged(kernel, robust_costs(graph, poses, mode.kinds), flag_bound)
         extras["weights"] = final_weights
         if problem.outlier_mask is not None:
             extras["precision"], extras["recall"] = precision_recall(

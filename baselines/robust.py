@@ -19,16 +19,23 @@ welsch     c (1 − exp(−s/c))                           exp(−s/c)
 Every ρ is concave in ``s``, so ``ρ(s) ≤ ρ(s_k) + w(s_k)(s − s_k)``: minimising the
 ``w``-weighted chordal cost decreases the robust cost (the IRLS majorisation) and ``0 < w ≤ 1``.
 
-**Scale.** MM-PGO's example uses ``c = 0.25`` in its internal units (``f = ½F``); here ``s`` is
-in units of the whitened residual. For an inlier whose noise matches its information, the
-translation term ``τ‖r_t‖²`` is ≈ χ²₂ (exactly for isotropic ``Λ_tt``) and the rotation term
-``4κ(1 − cos r_θ) ≈ 2κ r_θ²`` ≈ 2χ²₁, so ``s`` has mean ≈ 4 and the 3-degree-of-freedom χ²
-quantile is the natural yardstick. :data:`DEFAULT_SCALE` = χ²₃ 0.99-quantile = 11.345: edges
-below it keep weight ≥ 1/4 (GM) / e⁻¹ (Welsch) / 1 (Huber).
+**Scale.** For an inlier whose noise matches its information, the translation term ``τ‖r_t‖²``
+is ≈ χ²₂ (exactly for isotropic ``Λ_tt``) and the rotation term ``4κ(1 − cos r_θ) ≈ 2κ r_θ²`` ≈
+2χ²₁, so ``s`` has mean ≈ 4. :data:`DEFAULT_SCALE` (the project's scale) = χ²₃ 0.99-quantile =
+11.345: edges below it keep weight ≥ 1/4 (GM) / e⁻¹ (Welsch) / 1 (Huber). MM-PGO's own code
+(MurpheyLab/DPGO ``examples/dist_pgo.cpp``, ``loss_reg``) uses :data:`AUTHORS_SCALE` = 0.25 on the
+same ``s`` (its ``evaluate_E`` squares the √κ/√τ-scaled residual rows; only its cost carries a
+½), far below a consistent edge's ``s``: nearly every edge under the kernel is down-weighted.
 
-**Flagging outliers.** An edge is an inlier when its final weight is at least the weight at
-``s = c`` (:func:`flag_threshold`), i.e. when its final ``s ≤ c`` (every weight is
-non-increasing in ``s``; Huber's is 1 up to ``c``); the kernel ``none`` flags nothing.
+**Flagging outliers** (:func:`flagged`). A kernel's weights are non-increasing in ``s`` (strictly
+beyond ``c``), so any weight threshold is a threshold on ``s``. The kernel's own scale cannot be
+it: at MM-PGO's ``c = 0.25`` every consistent edge (``s`` ≈ 4) is beyond ``c``. The threshold is
+instead where an inlier's ``s`` has a 1 % chance to lie beyond: for the small-error ``s ≈ τ‖r_t‖²
++ 2κ r_θ²`` that is the 0.99 quantile of ``χ²₂ + 2χ²₁``, :data:`INLIER_BOUND` = 16.304 (the
+χ²₃(0.99) = 11.345 of eq. 1's ``κ r_θ² + τ‖r_t‖²``, which counts the rotation once; 4.2 % of
+inliers have ``s`` above 11.345). An edge under the kernel is flagged when its final weight is
+below ``w(INLIER_BOUND)``, i.e. when its final ``s > INLIER_BOUND``, whatever the kernel and its
+scale; the kernel ``none`` flags nothing.
 """
 
 from __future__ import annotations
@@ -41,6 +48,9 @@ KERNELS = ("none", "huber", "gm", "welsch")
 
 # χ²₃ quantile at 0.99 (scipy.stats.chi2.ppf(0.99, 3)), see the module docstring.
 DEFAULT_SCALE = 11.344866730144373
+AUTHORS_SCALE = 0.25  # MM-PGO's loss_reg in examples/dist_pgo.cpp (its default is 1.0)
+# 0.99 quantile of χ²₂ + 2χ²₁ (P(X₂ + 2X₁ > t) = 0.01 by quadrature), see the module docstring.
+INLIER_BOUND = 16.30391385410364
 
 
 def check_kernel(kernel: str) -> str:
@@ -84,9 +94,11 @@ def loss(kernel: str, s: np.ndarray, scale: float) -> np.ndarray:
     raise ValueRangeError("robust kernel", kernel, ", ".join(KERNELS))
 
 
-def flag_threshold(kernel: str, scale: float) -> float:
-    """The weight at ``s = c``: an edge whose final weight is below it is an outlier
-    (0 for the kernel ``none``, which flags nothing)."""
+def flagged(kernel: str, s: np.ndarray, bound: float = INLIER_BOUND) -> np.ndarray:
+    """Outlier flags ``(M,)`` bool of edges under ``kernel`` with final weighted squared
+    residuals ``s`` ``(M,)``: ``s > bound`` (the weight below ``w(bound)``; module docstring);
+    none for the kernel ``none``."""
+    s = np.asarray(s, dtype=np.float64)
     if check_kernel(kernel) == "none":
-        return 0.0
-    return float(weights(kernel, np.array(scale), scale))
+        return np.zeros(s.shape, dtype=bool)
+    return s > bound

@@ -100,6 +100,9 @@ class MethodRecord:
             weights), ``"package:relative/path"`` (found without importing the package) or a
             path; its sha256 keys the cached cells (:mod:`popbench.harness.cache`). None: none.
         has_inlier_mask: its ``Result.inlier_mask`` flags outliers (Table II's methods).
+        outlier_options: the options Table II (``popbench run outliers``) runs it with, as
+            ``(name, value)`` pairs; the table names them beside the method (mm-pgo: the kernel
+            and robust mode chosen by the rule in docs/outliers.md).
         learned: it runs a trained policy (``checkpoint`` holds it).
         centralised: it solves the whole graph in one process, whatever the robots (a
             reference, not one of Table I's distributed methods).
@@ -116,6 +119,7 @@ class MethodRecord:
     label: str
     checkpoint: str | None = None
     has_inlier_mask: bool = False
+    outlier_options: tuple[tuple[str, Any], ...] = ()
     learned: bool = False
     centralised: bool = False
     episodic: bool = False
@@ -149,7 +153,13 @@ METHODS: dict[str, MethodRecord] = {
         ),
         MethodRecord("cc-pgo", "baselines.cc_pgo:solve", "CC-PGO"),
         MethodRecord("ml-pgo", "baselines.ml_pgo:solve", "ML-PGO"),
-        MethodRecord("mm-pgo", "baselines.mm_pgo:solve", "MM-PGO", has_inlier_mask=True),
+        MethodRecord(
+            "mm-pgo",
+            "baselines.mm_pgo:solve",
+            "MM-PGO",
+            has_inlier_mask=True,
+            outlier_options=(("kernel", "huber"), ("robust_mode", "authors")),
+        ),
         MethodRecord(
             "prop-v1",
             "agents.methods:solve_prop_v1",

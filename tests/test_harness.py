@@ -1,5 +1,6 @@
 """The harness: cached cells, resumption, reports."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -129,6 +130,19 @@ def test_outliers_tables_report_mean_and_spread():
     assert f"12 ± {np.std([10.0, 14.0], ddof=1):.4g} (3400)" in markdown
     assert "0.6 ± 0.1414 (0.69)" in markdown
     assert r"$\pm$" in reports.outliers_latex(frame)
+
+
+def test_outliers_cells_run_methods_with_their_record_options():
+    from popbench.harness.outliers import OutliersConfig, cell_specs
+    from popbench.methods import method_record
+
+    config = OutliersConfig(datasets=("mit",), methods=("mm-pgo", "gnc"), seeds=(0,))
+    options = {spec["method"]: spec["options"] for spec in cell_specs(config)}
+    assert options == {"mm-pgo": dict(method_record("mm-pgo").outlier_options), "gnc": {}}
+    assert options["mm-pgo"]["robust_mode"] == "authors"
+    config = dataclasses.replace(config, kernel="gm")  # --kernel: only where a kernel exists
+    options = {spec["method"]: spec["options"] for spec in cell_specs(config)}
+    assert options["mm-pgo"]["kernel"] == "gm" and options["gnc"] == {}
 
 
 @pytest.mark.dataset

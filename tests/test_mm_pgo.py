@@ -14,7 +14,7 @@ from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, make_graph
 from popbench.initial import with_start
 from popbench.methods import Budget, get_method
-from popbench.outliers import precision_recall
+from popbench.outliers import candidate_mask, precision_recall
 
 MIT_OPTIMUM = 61.1541  # SE-Sync-convention F_chordal* (REFERENCES §6.2)
 
@@ -32,8 +32,15 @@ def test_kernel_weights_at_known_points():
     assert robust.weights("gm", np.array([0.0, c]), c) == pytest.approx([1.0, 0.25])
     assert robust.weights("welsch", np.array([c]), c) == pytest.approx([np.exp(-1.0)])
     assert robust.weights("none", np.array([1e6]), c) == pytest.approx([1.0])
-    assert robust.flag_threshold("gm", c) == pytest.approx(0.25)
-    assert robust.flag_threshold("none", c) == 0.0
+    s = np.array([1.0, robust.INLIER_BOUND, 1.001 * robust.INLIER_BOUND])
+    assert robust.flagged("gm", s).tolist() == [False, False, True]
+    assert not robust.flagged("none", s).any()
+
+
+def test_inlier_bound_is_the_099_quantile_of_an_inliers_s(rng):
+    """s ≈ τ‖r_t‖² + 2κ r_θ² of a consistent edge ~ χ²₂ + 2χ²₁: 1 % lie above the bound."""
+    samples = rng.chisquare(2, 400_000) + 2.0 * rng.chisquare(1, 400_000)
+    assert np.mean(samples > robust.INLIER_BOUND) == pytest.approx(0.01, abs=1e-3)
 
 
 @pytest.mark.parametrize("kernel", ["huber", "gm", "welsch"])
@@ -235,7 +242,12 @@ def _grid_with_outlier(rng: np.random.Generator):
 def test_robust_kernel_flags_the_hand_made_outlier(kernel: str, rng):
     graph, outlier = _grid_with_outlier(rng)
     problem = DistributedProblem.from_graph(graph, 2, partition="contiguous", outlier_mask=outlier)
-    result = mm_pgo.solve(with_start(problem, "odometry"), Budget(iterations=100), kernel=kernel)
+    result = mm_pgo.solve(
+        with_start(problem, "odometry"),
+        Budget(iterations=100),
+        kernel=kernel,
+        robust_mode="project",
+    )
     flagged = ~result.inlier_mask
     assert np.array_equal(flagged, outlier)
     assert result.extras["precision"] == 1.0 and result.extras["recall"] == 1.0
@@ -248,7 +260,9 @@ def test_huber_flags_exactly_the_hand_made_outlier(rng):
     """Huber down-weights the planted outlier to w = 0.051 (measured) and no other edge below 1."""
     graph, outlier = _grid_with_outlier(rng)
     problem = DistributedProblem.from_graph(graph, 3, partition="contiguous", outlier_mask=outlier)
-    result = mm_pgo.solve(with_start(problem, "chordal"), Budget(iterations=40), kernel="huber")
+    result = mm_pgo.solve(
+        with_start(problem, "chordal"), Budget(iterations=40), kernel="huber", robust_mode="project"
+    )
     flagged = ~result.inlier_mask
     assert np.array_equal(flagged, outlier)
     assert result.extras["precision"] == 1.0 and result.extras["recall"] == 1.0
@@ -256,6 +270,51 @@ def test_huber_flags_exactly_the_hand_made_outlier(rng):
         flagged, outlier
     )
     assert result.inlier_mask[problem.graph.kinds == EdgeKind.ODOMETRY].all()
+
+
+def _grid_split_with(kind: EdgeKind, rng) -> DistributedProblem:
+    """The 4×5 grid split into two contiguous robots, its first loop closure of ``kind``
+    replaced by a gross outlier, odometry start."""
+    graph, _ = _grid_with_outlier(rng)
+    clean = DistributedProblem.from_graph(
+        graph.replace(measurements=se2.between(graph.poses[graph.tails], graph.poses[graph.heads])),
+        2,
+        partition="contiguous",
+    )
+    outlier = np.zeros(clean.graph.num_edges, dtype=bool)
+    outlier[np.flatnonzero(clean.graph.kinds == kind)[0]] = True
+    measurements = clean.graph.measurements + rng.normal(0.0, 0.01, clean.graph.measurements.shape)
+    measurements[outlier] = [-2.5, 1.5, -2.0]
+    corrupted = clean.graph.replace(measurements=measurements)
+    return with_start(DistributedProblem(corrupted, clean.start, outlier), "odometry")
+
+
+@pytest.mark.parametrize("kernel", ["huber", "gm", "welsch"])
+def test_authors_mode_flags_inter_robot_outliers_only(kernel: str, rng):
+    """MM-PGO's own placement: the kernel (c = 0.25) acts on inter-robot edges only, so an
+    inter-robot loop closure outlier is flagged and an intra-robot one never is."""
+    options = {"kernel": kernel, "robust_mode": "authors"}
+    inter = _grid_split_with(EdgeKind.INTER_LOOP, rng)
+    result = mm_pgo.solve(inter, Budget(iterations=200), **options)
+    assert result.extras["kernel_scale"] == robust.AUTHORS_SCALE
+    assert np.array_equal(~result.inlier_mask, inter.outlier_mask)
+    among = candidate_mask(inter.graph, "loops")
+    assert precision_recall(~result.inlier_mask, inter.outlier_mask, among) == (1.0, 1.0)
+
+    intra = _grid_split_with(EdgeKind.LOOP, rng)
+    result = mm_pgo.solve(intra, Budget(iterations=200), **options)
+    intra_robot = intra.graph.kinds == EdgeKind.LOOP
+    assert result.inlier_mask[intra_robot].all()  # never flagged, outlier or not
+    among = candidate_mask(intra.graph, "loops")
+    _, recall = precision_recall(~result.inlier_mask, intra.outlier_mask, among)
+    assert recall == 0.0
+    project = mm_pgo.solve(intra, Budget(iterations=200), kernel=kernel, robust_mode="project")
+    assert np.array_equal(~project.inlier_mask, intra.outlier_mask)
+
+
+def test_unknown_robust_mode_is_a_clear_error(small_graph):
+    with pytest.raises(ValueRangeError, match="robust mode"):
+        mm_pgo.solve(_split(small_graph, 2), Budget(iterations=1), kernel="gm", robust_mode="all")
 
 
 # ----- a real dataset ------------------------------------------------------------------------

@@ -122,7 +122,11 @@ def outliers_command(
     robots: int = typer.Option(7, min=1, help="Team size."),
     seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
     iterations: options.Iterations = 1000,
-    kernel: str = typer.Option("gm", help="mm-pgo robust kernel: huber | gm | welsch."),
+    kernel: str = typer.Option(
+        None,
+        help="mm-pgo robust kernel: huber | gm | welsch (default: its registry record's).",
+        show_default=False,
+    ),
     init: str = typer.Option(
         "odometry", help="odometry | chordal (made from the corrupted data) | given (the file's)."
     ),
@@ -150,7 +154,9 @@ def outliers_command(
         seeds=options.integers(seeds, "seed", 0),
         iterations=iterations,
         init=options.start(init),
-        kernel=options.names(kernel, options.ROBUST_KERNELS, "kernel")[0],
+        kernel=None
+        if kernel is None
+        else options.names(kernel, options.ROBUST_KERNELS, "kernel")[0],
         candidates=options.names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
         out=out,
     )

@@ -23,7 +23,7 @@ from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table2_cell
 from popbench.harness.runner import run_experiment
 from popbench.initial import with_start
-from popbench.methods import Budget, get_method, method_options
+from popbench.methods import Budget, get_method, method_options, method_record
 from popbench.outliers import candidate_mask, inject_outliers, precision_recall
 
 DATASETS = ("intel", "mit", "csail")
@@ -42,7 +42,7 @@ class OutliersConfig:
     seeds: tuple[int, ...] = (0, 1, 2)
     iterations: int = 1000
     init: str = "odometry"
-    kernel: str = "gm"
+    kernel: str | None = None  # None: each method's registry record (outlier_options)
     candidates: str = "loops"
     out: Path = Path("results/outliers")
 
@@ -59,7 +59,7 @@ def cell_specs(config: OutliersConfig) -> list[Spec]:
             "seed": seed,
             "iterations": config.iterations,
             "init": config.init,
-            "kernel": config.kernel,
+            "options": method_outlier_options(method, config.kernel),
             "candidates": config.candidates,
         }
         for dataset in config.datasets
@@ -67,6 +67,15 @@ def cell_specs(config: OutliersConfig) -> list[Spec]:
         for method in config.methods
         for seed in config.seeds
     ]
+
+
+def method_outlier_options(method: str, kernel: str | None = None) -> dict[str, Any]:
+    """The options Table II runs ``method`` with: its record's ``outlier_options``, the kernel
+    replaced by ``kernel`` (when given, for a method with a ``kernel`` option)."""
+    options = dict(method_record(method).outlier_options)
+    if kernel is not None and "kernel" in method_options(method):
+        options["kernel"] = kernel
+    return options
 
 
 def corrupted_problem(
@@ -84,9 +93,7 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
     problem = corrupted_problem(
         spec["dataset"], spec["robots"], spec["rate"], spec["seed"], spec["init"], candidates
     )
-    options: dict[str, Any] = {"seed": spec["seed"]}
-    if "kernel" in method_options(spec["method"]):  # a robust method: the table's kernel
-        options["kernel"] = spec["kernel"]
+    options: dict[str, Any] = {"seed": spec["seed"], **spec["options"]}
     result = get_method(spec["method"])(problem, Budget(iterations=spec["iterations"]), **options)
     if result.inlier_mask is None:
         precision = recall = float("nan")
@@ -101,6 +108,7 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
         "seed": spec["seed"],
         "init": spec["init"],
         "candidates": candidates,
+        "options": ", ".join(f"{k}={v}" for k, v in spec["options"].items()),
         "outliers": int(problem.outlier_mask.sum()),
         "F": result.F,
         "F_chordal": result.F_chordal,
