@@ -9,7 +9,7 @@ prop-v1
        (agents.inference.IncrementalPolicy: only the L-hop neighbourhood of the moved poses is
        recomputed).
     2. The consensus (popbench.reconcile, `consensus=`): information-weighted ADMM over the
-       separators (popbench.consensus; the paper's), optionally after a rigid alignment of the
+       separators (popbench.consensus; the paper's), by default after a rigid alignment of the
        robots' frames (popbench.alignment, "aligned-admm"; docs/consensus.md for the choice of
        the default); the global estimate is its output.
 prop-v2

@@ -242,8 +242,11 @@ def heldout_command(
         help="The imitation row's actor (default: the committed imitation-V2-n7.pt).",
         show_default=False,
     ),
-    consensus: str = typer.Option(
-        "admm", help="The consensus every row goes through: admm | aligned-admm."
+    consensus: str | None = typer.Option(
+        None,
+        help="The consensus every row goes through: admm | aligned-admm (default: the one "
+        "prop-v1 and local-lm use, popbench.reconcile.DEFAULT_CONSENSUS).",
+        show_default=False,
     ),
     out: options.Out = Path("results/heldout"),
     outlier_rate: float = typer.Option(
@@ -268,7 +271,7 @@ def heldout_command(
     heldout.md, heldout.png/.pdf and manifest.json.
     """
     from popbench.harness.heldout import ROWS, HeldoutConfig, run_heldout, summary_json
-    from popbench.reconcile import CONSENSUS_MODES
+    from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS
 
     for path, what in (
         (checkpoint, "--checkpoint"),
@@ -282,7 +285,7 @@ def heldout_command(
         problems=problems,
         poses_per_robot=poses_per_robot,
         rows=ROWS if rows is None else options.names(rows, ROWS, "--rows"),
-        consensus=options.names(consensus, CONSENSUS_MODES, "--consensus")[0],
+        consensus=options.names(consensus or DEFAULT_CONSENSUS, CONSENSUS_MODES, "--consensus")[0],
         checkpoint=checkpoint,
         imitation_checkpoint=imitation_checkpoint,
         out=out,
