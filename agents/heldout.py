@@ -32,7 +32,7 @@ from popbench.reconcile import reconcile
 from popbench.solvers.local_lm import local_optima
 from popbench.synthetic import make_problem
 
-IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7.pt"
+IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7-robust.pt"
 # The environment of the non-learned policy rows: the trajectory task without the base step
 # (each row's Δ is its own).
 POLICY_TASK = dataclasses.replace(TRAJECTORY_TASK, base="none")

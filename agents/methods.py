@@ -177,7 +177,7 @@ def solve_prop_v1(
             start, problem.graph.poses.
         budget: see the module docstring (only `seconds` is used).
         seed: seeds torch (inference is deterministic; kept for the interface).
-        checkpoint: actor checkpoint (default: agents/checkpoints/actor-V2-n7.pt); the episode
+        checkpoint: actor checkpoint (default: the prop-v1 record's); the episode
             runs in the environment the checkpoint was trained in (its `task`).
         device: torch device of the actor ("cpu").
         consensus: one of popbench.reconcile.CONSENSUS_MODES ("admm": the paper's plain ADMM;

@@ -21,7 +21,7 @@ incremental observation, PGOCore.observation_update + IncrementalPolicy.observe_
 consensus (of which SuperLU's factorisations, splu in popbench.consensus_system), measured by
 wrapping those functions with timers for the run.
 
-The actor is the committed n = 7 checkpoint (agents/checkpoints/actor-V2-n7.pt); without it, a
+The actor is prop-v1's default checkpoint (its record in popbench/methods.py); without it, a
 randomly initialised actor of the cpu-small preset's size (timings do not depend on training).
 """
 

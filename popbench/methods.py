@@ -142,7 +142,9 @@ class MethodRecord:
         return Path(next(iter(found.submodule_search_locations))) / relative
 
 
-ACTOR_CHECKPOINT = "agents:checkpoints/actor-V2-n7.pt"  # the n = 7 V2 actor (any n)
+# The n = 7 V2 actor (any n): the imitation phase of the cpu-imitation-robust run, seed 0 (its
+# GA-SAC fine-tuning measured worse on held-out problems: agents/checkpoints/README.md).
+ACTOR_CHECKPOINT = "agents:checkpoints/imitation-V2-n7-robust.pt"
 
 METHODS: dict[str, MethodRecord] = {
     record.name: record

@@ -234,12 +234,12 @@ def heldout_command(
     ),
     checkpoint: Path = typer.Option(
         None,
-        help="The prop-v1 row's actor (default: the committed actor-V2-n7.pt).",
+        help="The prop-v1 row's actor (default: prop-v1's own, agents/checkpoints/README.md).",
         show_default=False,
     ),
     imitation_checkpoint: Path = typer.Option(
         None,
-        help="The imitation row's actor (default: the committed imitation-V2-n7.pt).",
+        help="The imitation row's actor (default: the committed imitation-V2-n7-robust.pt).",
         show_default=False,
     ),
     consensus: str | None = typer.Option(
