@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import itertools
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -113,6 +114,20 @@ def provenance(dataset: str, method: str | None = None) -> dict[str, Any]:
     if method in METHODS and METHODS[method].checkpoint is not None:
         inputs["checkpoint_sha256"] = checkpoint_sha256(method)
     return inputs
+
+
+def grid_specs(
+    experiment: str, axes: Mapping[str, Sequence[Any]], shared: Mapping[str, Any]
+) -> list[dict[str, Any]]:
+    """One cell specification per point of the product of ``axes`` (in their order, the last
+    varying fastest; they include ``dataset`` and ``method``): the point, the options every
+    cell shares (``shared``) and what the cell is computed from (:func:`provenance`)."""
+    specs = []
+    for values in itertools.product(*axes.values()):
+        point = dict(zip(axes, values, strict=True))
+        inputs = provenance(point["dataset"], point["method"])
+        specs.append({**inputs, "experiment": experiment, **point, **shared})
+    return specs
 
 
 class CellCache:

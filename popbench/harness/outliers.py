@@ -18,7 +18,7 @@ import pandas as pd
 
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, reports
-from popbench.harness.cache import provenance
+from popbench.harness.cache import grid_specs
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table2_cell
 from popbench.harness.runner import run_experiment
@@ -48,25 +48,22 @@ class OutliersConfig:
 
 
 def cell_specs(config: OutliersConfig) -> list[Spec]:
-    return [
-        {
-            **provenance(dataset, method),
-            "experiment": "outliers",
-            "dataset": dataset,
-            "rate": rate,
-            "robots": config.robots,
-            "method": method,
-            "seed": seed,
-            "iterations": config.iterations,
-            "init": config.init,
-            "options": method_outlier_options(method, config.kernel),
-            "candidates": config.candidates,
-        }
-        for dataset in config.datasets
-        for rate in config.rates
-        for method in config.methods
-        for seed in config.seeds
-    ]
+    axes = {
+        "dataset": config.datasets,
+        "rate": config.rates,
+        "method": config.methods,
+        "seed": config.seeds,
+    }
+    shared = {
+        "robots": config.robots,
+        "iterations": config.iterations,
+        "init": config.init,
+        "candidates": config.candidates,
+    }
+    specs = grid_specs("outliers", axes, shared)
+    for spec in specs:
+        spec["options"] = method_outlier_options(spec["method"], config.kernel)
+    return specs
 
 
 def method_outlier_options(method: str, kernel: str | None = None) -> dict[str, Any]:
