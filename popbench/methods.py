@@ -133,13 +133,20 @@ class MethodRecord:
         package, separator, relative = self.checkpoint.partition(":")
         if not separator:
             return Path(self.checkpoint).expanduser()
-        try:
-            found = importlib.util.find_spec(package)
-        except (ImportError, ValueError):
-            return None
-        if found is None or not found.submodule_search_locations:
-            return None
-        return Path(next(iter(found.submodule_search_locations))) / relative
+        folder = package_folder(package)
+        return None if folder is None else folder / relative
+
+
+def package_folder(name: str) -> Path | None:
+    """The folder of an importable package, found without importing it (no torch at startup),
+    or None where there is no such package."""
+    try:
+        found = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    if found is None or not found.submodule_search_locations:
+        return None
+    return Path(next(iter(found.submodule_search_locations)))
 
 
 ACTOR_CHECKPOINT = "agents:checkpoints/actor-V2-n7.pt"  # the n = 7 V2 actor (any n)
