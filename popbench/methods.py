@@ -112,6 +112,11 @@ class MethodRecord:
             Result on the same problem with the same options (None: it computes it first), and
             reports ``wall_s`` / ``parallel_s`` as that Result's plus its refinement's [s]; the
             harness passes the refined method's cached cell (:mod:`popbench.harness.refining`).
+        options: ``"module:Class"`` of a dataclass whose fields are options its solve takes
+            through ``**options`` besides its named parameters (so that methods sharing options
+            declare them once: cc-pgo's and ml-pgo's derive from
+            :class:`baselines.rbcd.MethodOptions`), imported on first use
+            (:func:`method_options`); None: its solve names them all.
     """
 
     name: str
@@ -124,6 +129,7 @@ class MethodRecord:
     centralised: bool = False
     episodic: bool = False
     refines: str | None = None
+    options: str | None = None
 
     def checkpoint_path(self) -> Path | None:
         """:attr:`checkpoint` as a path (a ``"package:relative/path"`` resolved against the
@@ -158,8 +164,12 @@ METHODS: dict[str, MethodRecord] = {
         MethodRecord(
             "gnc", "popbench.solvers.gnc:solve", "GNC", has_inlier_mask=True, centralised=True
         ),
-        MethodRecord("cc-pgo", "baselines.cc_pgo:solve", "CC-PGO"),
-        MethodRecord("ml-pgo", "baselines.ml_pgo:solve", "ML-PGO"),
+        MethodRecord(
+            "cc-pgo", "baselines.cc_pgo:solve", "CC-PGO", options="baselines.cc_pgo:Options"
+        ),
+        MethodRecord(
+            "ml-pgo", "baselines.ml_pgo:solve", "ML-PGO", options="baselines.ml_pgo:Options"
+        ),
         MethodRecord(
             "mm-pgo",
             "baselines.mm_pgo:solve",
@@ -211,8 +221,9 @@ def distributed_methods() -> tuple[str, ...]:
 
 def method_options(name: str) -> tuple[str, ...]:
     """The keyword options the method registered under ``name`` accepts: its solve function's
-    named parameters after ``problem`` and ``budget`` (and those of the method it refines,
-    :attr:`MethodRecord.refines`, which gets its ``**options``). A trailing ``**_`` swallows
+    named parameters after ``problem`` and ``budget``, then the fields of its record's
+    :attr:`~MethodRecord.options` dataclass, then the options of the method it refines
+    (:attr:`MethodRecord.refines`, which gets its ``**options``). A trailing ``**_`` swallows
     anything else, so callers that take options from users should check them against this
     list. A refiner's ``refined`` (a Result the harness passes) is not a user option."""
     names = [
@@ -221,9 +232,11 @@ def method_options(name: str) -> tuple[str, ...]:
         if parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
         and parameter.name != "refined"
     ]
-    refined = method_record(name).refines
-    if refined is not None:
-        names += [option for option in method_options(refined) if option not in names]
+    record = method_record(name)
+    if record.options is not None:
+        names += [field.name for field in dataclasses.fields(load_object(record.options))]
+    if record.refines is not None:
+        names += [option for option in method_options(record.refines) if option not in names]
     return tuple(names)
 
 
