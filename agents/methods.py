@@ -227,14 +227,12 @@ def solve_prop_v1(
 def solve_prop_v2(
     problem: DistributedProblem,
     budget: Budget | None = None,
-    seed: int = 0,
-    checkpoint: str | Path | None = None,
-    device: str = "cpu",
     lm_iterations: int = PROP_V2_LM_ITERATIONS,
     refined: Result | None = None,
     **options: object,
 ) -> Result:
-    """prop-v2: prop-v1, then `lm_iterations` (75) Levenberg–Marquardt iterations.
+    """prop-v2: prop-v1 (with ``options``: seed, checkpoint, device, consensus, …), then
+    `lm_iterations` (75) Levenberg–Marquardt iterations.
 
     `refined`: prop-v1's Result on this problem with these options (the harness passes its
     cached cell, popbench.harness.refining); None runs prop-v1 first. Either way wall_s and
@@ -242,7 +240,7 @@ def solve_prop_v2(
     """
     from popbench.solvers.lm import solve_graph
 
-    first = refined or solve_prop_v1(problem, budget, seed, checkpoint, device, **options)
+    first = refined or solve_prop_v1(problem, budget, **options)
     started = time.perf_counter()
     refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations)
     lm_s = time.perf_counter() - started

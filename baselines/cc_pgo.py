@@ -22,49 +22,27 @@ adaptive restart at 4.0e-4 (mit) and 2.4e-4 (m3500). No parameter is tuned for i
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from baselines.rbcd import RBCDOptions, solve_rbcd
+from baselines.rbcd import MethodOptions
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
 
 
-def solve(
-    problem: DistributedProblem,
-    budget: Budget | None = None,
-    rank: int = 5,
-    certify: bool = False,
-    seed: int = 0,
-    selection: str = "greedy",
-    accelerated: bool = True,
-    rtr_iterations: int = 1,
-    tcg_iterations: int = 10,
-    rounding: str = "svd",
-    **_: object,
-) -> Result:
-    """Solve ``problem`` with CC-PGO.
+@dataclasses.dataclass(frozen=True)
+class Options(MethodOptions):
+    """CC-PGO's options (its record's ``options``): the RBCD methods' and ``accelerated``,
+    RBCD++ (default) or plain RBCD."""
 
-    Args:
-        problem: the graph and its robot assignment (the blocks).
-        budget: iterations (default 1000) and an optional wall-clock cap.
-        rank: relaxation rank ``r``.
-        certify: report ``λ_min`` of the optimality certificate in ``extras``.
-        seed: seeds the lifting matrix.
-        selection: ``"greedy"`` or ``"round-robin"`` colour-class selection.
-        accelerated: RBCD++ (default) or plain RBCD.
-        rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
-        tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
-        rounding: ``"svd"`` (SE-Sync's rounding, default) or ``"anchor"`` (dpgo's); see
-            :func:`baselines.rbcd.rounding_basis`.
-    """
+    accelerated: bool = True
+
+
+def solve(problem: DistributedProblem, budget: Budget | None = None, **options: object) -> Result:
+    """CC-PGO on ``problem``, whose robot assignment gives the blocks, with :class:`Options`
+    named in ``options`` (other keys are ignored)."""
     graph = problem.graph
     robots = np.zeros(graph.num_poses, np.int64) if graph.robots is None else graph.robots
-    options = RBCDOptions.with_local(
-        rtr_iterations,
-        tcg_iterations,
-        rounding,
-        selection,
-        accelerated=accelerated,
-        restart="fixed",
-    )
-    return solve_rbcd(graph, robots, budget or Budget(), options, rank, certify, seed)
+    chosen = Options.of(options)
+    return chosen.solve(graph, robots, budget or Budget(), chosen.accelerated, "fixed")

@@ -18,46 +18,30 @@ assignment as given.
 
 from __future__ import annotations
 
-from baselines.rbcd import RBCDOptions, solve_rbcd
+import dataclasses
+
+from baselines.rbcd import MethodOptions
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
 from popbench.partition import partition
 
 
-def solve(
-    problem: DistributedProblem,
-    budget: Budget | None = None,
-    rank: int = 5,
-    certify: bool = False,
-    seed: int = 0,
-    repartition: bool = True,
-    selection: str = "greedy",
-    rtr_iterations: int = 1,
-    tcg_iterations: int = 10,
-    rounding: str = "svd",
-    **_: object,
-) -> Result:
-    """Solve ``problem`` with ML-PGO.
+@dataclasses.dataclass(frozen=True)
+class Options(MethodOptions):
+    """ML-PGO's options (its record's ``options``): the RBCD methods' (``seed`` also seeds the
+    METIS partition) and ``repartition``: split with METIS (default) or keep
+    ``problem.graph.robots``."""
 
-    Args:
-        problem: the graph; its number of robots sets ``n``.
-        budget: iterations (default 1000) and an optional wall-clock cap.
-        rank: relaxation rank ``r``.
-        certify: report ``λ_min`` of the optimality certificate in ``extras``.
-        seed: seeds the METIS partition and the lifting matrix.
-        repartition: split with METIS (default) or keep ``problem.graph.robots``.
-        selection: ``"greedy"`` or ``"round-robin"`` colour-class selection.
-        rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
-        tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
-        rounding: ``"svd"`` (SE-Sync's rounding, default) or ``"anchor"`` (dpgo's); see
-            :func:`baselines.rbcd.rounding_basis`.
-    """
+    repartition: bool = True
+
+
+def solve(problem: DistributedProblem, budget: Budget | None = None, **options: object) -> Result:
+    """ML-PGO on ``problem``, whose number of robots sets ``n``, with :class:`Options` named in
+    ``options`` (other keys are ignored)."""
     graph = problem.graph
-    if repartition or graph.robots is None:
-        robots = partition(graph, problem.num_robots, "metis", seed)
+    chosen = Options.of(options)
+    if chosen.repartition or graph.robots is None:
+        robots = partition(graph, problem.num_robots, "metis", chosen.seed)
     else:
         robots = graph.robots
-    options = RBCDOptions.with_local(
-        rtr_iterations, tcg_iterations, rounding, selection, accelerated=True, restart="adaptive"
-    )
-    return solve_rbcd(graph, robots, budget or Budget(), options, rank, certify, seed)
+    return chosen.solve(graph, robots, budget or Budget(), True, "adaptive")

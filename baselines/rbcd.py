@@ -36,8 +36,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
-from typing import NamedTuple
+from collections.abc import Callable, Mapping
+from typing import NamedTuple, Self
 
 import numpy as np
 import scipy.sparse as sp
@@ -725,21 +725,6 @@ class RBCDOptions:
     batch_below: int = BATCH_BELOW_POSES
     rounding: str = "svd"
 
-    @classmethod
-    def with_local(
-        cls,
-        rtr_iterations: int,
-        tcg_iterations: int,
-        rounding: str,
-        selection: str,
-        accelerated: bool,
-        restart: str,
-    ) -> RBCDOptions:
-        """The options with ``rtr_iterations`` trust-region steps of ``tcg_iterations``
-        truncated-CG iterations per robot update (:class:`LocalOptions`), the rest as named."""
-        local = LocalOptions(rtr_iterations=rtr_iterations, tcg_iterations=tcg_iterations)
-        return cls(accelerated, restart, selection=selection, local=local, rounding=rounding)
-
 
 @dataclasses.dataclass(frozen=True)
 class RBCDRun:
@@ -922,9 +907,9 @@ def solve_rbcd(
     robots: np.ndarray,
     budget: Budget,
     options: RBCDOptions,
-    rank: int = 5,
-    certify: bool = False,
-    seed: int = 0,
+    rank: int,
+    certify: bool,
+    seed: int,
 ) -> Result:
     """Run RBCD on ``graph`` split by ``robots`` ``(N,)`` and round the result.
 
@@ -992,3 +977,48 @@ def solve_rbcd(
         history_s=setup_parallel_s + run.history_s,
         history_objective="F_chordal",
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodOptions:
+    """The options cc-pgo and ml-pgo share, with their defaults; each method's own options
+    (``baselines.cc_pgo.Options``, ``baselines.ml_pgo.Options``, named by their records:
+    :attr:`popbench.methods.MethodRecord.options`) add to these fields, which are what
+    ``popbench solve -o KEY=VALUE`` accepts.
+
+    Attributes:
+        rank: relaxation rank ``r ≥ 2`` (dpgo 5).
+        certify: report ``λ_min`` of the optimality certificate in ``extras``.
+        seed: seeds the lifting matrix (ml-pgo: its METIS partition too).
+        selection: ``"greedy"`` or ``"round-robin"`` colour-class selection.
+        rtr_iterations: accepted trust-region steps per robot update (dpgo 3).
+        tcg_iterations: truncated-CG iterations per trust-region step (dpgo 50).
+        rounding: ``"svd"`` (SE-Sync's rounding, default) or ``"anchor"`` (dpgo's); see
+            :func:`rounding_basis`.
+    """
+
+    rank: int = 5
+    certify: bool = False
+    seed: int = 0
+    selection: str = "greedy"
+    rtr_iterations: int = 1
+    tcg_iterations: int = 10
+    rounding: str = "svd"
+
+    @classmethod
+    def of(cls, options: Mapping[str, object]) -> Self:
+        """The fields named in ``options`` (a method's ``**options``), the others at their
+        defaults; keys that are not fields are ignored (the harness's common options)."""
+        names = {field.name for field in dataclasses.fields(cls)}
+        return cls(**{key: value for key, value in options.items() if key in names})  # type: ignore[arg-type]
+
+    def solve(
+        self, graph: PoseGraph, robots: np.ndarray, budget: Budget, accelerated: bool, restart: str
+    ) -> Result:
+        """:func:`solve_rbcd` with these options, RBCD++ or plain RBCD (``accelerated``) and the
+        ``restart`` rule (:class:`RBCDOptions`)."""
+        local = LocalOptions(rtr_iterations=self.rtr_iterations, tcg_iterations=self.tcg_iterations)
+        options = RBCDOptions(
+            accelerated, restart, selection=self.selection, local=local, rounding=self.rounding
+        )
+        return solve_rbcd(graph, robots, budget, options, self.rank, self.certify, self.seed)

@@ -26,25 +26,26 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-from reference import ORIGINALS, ORIGINALS_PROVENANCE, PUBLISHED_OPTIMA, gtsam_lm_seconds
+from reference import (
+    ORIGINALS,
+    ORIGINALS_PROVENANCE,
+    first_within,
+    gtsam_lm_seconds,
+    relative_gap,
+    split_problem,
+)
 
 from baselines import mm_pgo
-from popbench import datasets
-from popbench.distributed import DistributedProblem
-from popbench.initial import with_start
 from popbench.methods import Budget, Result
 from popbench.outliers import with_outliers
 
 
 def run(name: str, robots: int, init: str, iterations: int) -> Result:
-    problem = with_start(DistributedProblem.from_graph(datasets.load(name), robots), init)
-    result = mm_pgo.solve(problem, Budget(iterations=iterations))
-    gaps = result.history / PUBLISHED_OPTIMA[name] - 1.0
-    within = np.flatnonzero(gaps < 1e-3)
-    first = str(within[0]) if within.size else "-"
+    result = mm_pgo.solve(split_problem(name, robots, init), Budget(iterations=iterations))
+    gap, within = relative_gap(name, result.history[-1]), first_within(name, result.history)
+    first = "-" if within is None else str(within)
     print(
-        f"| {name:8s} | {robots:3d} | {init:8s} | {result.F_chordal:11.4f} | {gaps[-1]:9.2e} | "
+        f"| {name:8s} | {robots:3d} | {init:8s} | {result.F_chordal:11.4f} | {gap:9.2e} | "
         f"{first:>6s} | {result.iterations:5d} | {result.wall_s:7.2f} | {result.parallel_s:7.2f} |",
         flush=True,
     )
@@ -54,7 +55,7 @@ def run(name: str, robots: int, init: str, iterations: int) -> Result:
 def timing_row(name: str, iterations: int, repeats: int) -> str:
     """A timing-table row for ``name`` at n = 7: minima over ``repeats`` alternating runs of
     GTSAM LM and of mm-pgo (chordal start) of the wall and the CPU seconds, and their ratios."""
-    problem = with_start(DistributedProblem.from_graph(datasets.load(name), 7), "chordal")
+    problem = split_problem(name, 7, "chordal")
     references, runs = [], []
     for _ in range(repeats):
         references.append(gtsam_lm_seconds(name))
@@ -73,11 +74,9 @@ def timing_row(name: str, iterations: int, repeats: int) -> str:
 def originals_row(name: str, iterations: int) -> str:
     """Ours (n = 7, chordal start) beside MM-PGO's C++ code on ``name``: wall s, F_chordal and
     relative gap to the optimum of each, and the ratio of the gaps."""
-    problem = with_start(DistributedProblem.from_graph(datasets.load(name), 7), "chordal")
-    result = mm_pgo.solve(problem, Budget(iterations=iterations))
-    optimum = PUBLISHED_OPTIMA[name]
+    result = mm_pgo.solve(split_problem(name, 7, "chordal"), Budget(iterations=iterations))
     original_wall, original_f = ORIGINALS["mm-pgo"][name]
-    ours_gap, original_gap = result.F_chordal / optimum - 1.0, original_f / optimum - 1.0
+    ours_gap, original_gap = relative_gap(name, result.F_chordal), relative_gap(name, original_f)
     return (
         f"| {name} | {result.wall_s:.2f} | {result.F_chordal:.4f} | {ours_gap:.1e} | "
         f"{original_wall:.1f} | {original_f:.4f} | {original_gap:.1e} | "
@@ -132,8 +131,8 @@ def main() -> None:
     if not args.skip_outliers:
         print("\n| dataset | n | kernel | outliers | precision | recall | F_chordal |")
         print("|---|---|---|---|---|---|---|")
-        base = with_start(DistributedProblem.from_graph(datasets.load("intel"), 7), "chordal")
-        problem = with_outliers(base, 0.10, seed=0)  # the chordal start of the corrupted data
+        # the chordal start made again from the corrupted data (with_outliers)
+        problem = with_outliers(split_problem("intel", 7, "chordal"), 0.10, seed=0)
         for kernel in ("gm", "welsch", "huber"):
             result = mm_pgo.solve(problem, Budget(iterations=args.iterations), kernel=kernel)
             print(

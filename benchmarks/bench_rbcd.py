@@ -36,18 +36,21 @@ import time  # noqa: E402
 from collections.abc import Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
-from reference import PUBLISHED_OPTIMA, gtsam_lm_seconds  # noqa: E402
+from reference import (  # noqa: E402
+    PUBLISHED_OPTIMA,
+    TOLERANCE,
+    first_within,
+    gtsam_lm_seconds,
+    relative_gap,
+    split_problem,
+)
 from scipy.sparse import _sparsetools  # noqa: E402
 
 from baselines import rbcd  # noqa: E402
-from popbench import datasets  # noqa: E402
-from popbench.distributed import DistributedProblem  # noqa: E402
-from popbench.initial import with_start  # noqa: E402
 from popbench.methods import Budget, Result, get_method  # noqa: E402
 
 METHODS = ("cc-pgo", "ml-pgo")
 RATIO_DATASETS = ("m3500", "city10k")  # wall time compared with GTSAM LM at n = 7
-TOLERANCE = 1e-3
 
 
 def best_gtsam_lm_seconds(name: str, repeats: int = 3) -> float:
@@ -81,22 +84,13 @@ def sparse_kernel_clock() -> Iterator[list[float]]:
         _sparsetools.csr_matvecs, rbcd.CholeskyPreconditioner.solve = matvecs, solve
 
 
-def first_within(history: np.ndarray, optimum: float) -> int | None:
-    """The first round whose relaxed cost is within ``TOLERANCE`` of ``optimum``, or None."""
-    hits = np.flatnonzero(history / optimum - 1.0 < TOLERANCE)
-    return int(hits[0]) if hits.size else None
-
-
 def run(name: str, robots: int, method: str, iterations: int, init: str) -> Result:
-    graph = datasets.load(name)
-    problem = with_start(DistributedProblem.from_graph(graph, robots), init)
-    return get_method(method)(problem, Budget(iterations=iterations))
+    return get_method(method)(split_problem(name, robots, init), Budget(iterations=iterations))
 
 
 def row(name: str, robots: int, method: str, result: Result) -> str:
-    optimum = PUBLISHED_OPTIMA[name]
-    gap = result.F_chordal / optimum - 1.0
-    reached = first_within(result.history, optimum)
+    gap = relative_gap(name, result.F_chordal)
+    reached = first_within(name, result.history)
     return (
         f"| {name} | {robots} | {method} | {result.F_chordal:.4f} | {gap:+.2e} | "
         f"{'yes' if gap < TOLERANCE else 'NO'} | {reached if reached is not None else '-'} | "
@@ -163,7 +157,7 @@ def main() -> None:
     for name in args.odometry:
         for method in METHODS:
             result = run(name, 7, method, args.iterations, "odometry")
-            gap = result.F_chordal / PUBLISHED_OPTIMA[name] - 1.0
+            gap = relative_gap(name, result.F_chordal)
             print(
                 f"| {name} | {method} | {result.history[0]:.4g} | {result.F:.4f} | "
                 f"{result.F_chordal:.4f} | "

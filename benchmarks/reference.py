@@ -1,4 +1,5 @@
-"""What the baseline benchmarks measure against: the published optima and GTSAM LM's time.
+"""What the baseline benchmarks measure against: the published optima and GTSAM LM's time;
+the problems they run on.
 
 Imported by the benchmark scripts, which run as ``python benchmarks/<script>.py`` (so this
 folder is on ``sys.path``).
@@ -11,6 +12,8 @@ import time
 import numpy as np
 
 from popbench import datasets
+from popbench.distributed import DistributedProblem
+from popbench.initial import with_start
 
 PUBLISHED_OPTIMA = {  # F_chordal*, SE-Sync convention (REFERENCES §6.2, certified or recomputed)
     "intel": 393.6525,
@@ -19,6 +22,26 @@ PUBLISHED_OPTIMA = {  # F_chordal*, SE-Sync convention (REFERENCES §6.2, certif
     "m3500": 193.8623,
     "city10k": 638.6246,
 }
+
+TOLERANCE = 1e-3  # a relative gap to the optimum that counts as converged
+
+
+def split_problem(name: str, robots: int, init: str) -> DistributedProblem:
+    """Dataset ``name`` split among ``robots`` robots (the default partition), started from
+    ``init`` (:func:`popbench.initial.with_start`)."""
+    return with_start(DistributedProblem.from_graph(datasets.load(name), robots), init)
+
+
+def relative_gap(name: str, f_chordal: float | np.ndarray) -> float | np.ndarray:
+    """``F_chordal / F_chordal* − 1`` against dataset ``name``'s published optimum."""
+    return f_chordal / PUBLISHED_OPTIMA[name] - 1.0
+
+
+def first_within(name: str, history: np.ndarray) -> int | None:
+    """The first round whose relaxed cost (2f, a method's ``history``) is within
+    :data:`TOLERANCE` of dataset ``name``'s published optimum, or None."""
+    hits = np.flatnonzero(relative_gap(name, history) < TOLERANCE)
+    return int(hits[0]) if hits.size else None
 
 
 def gtsam_lm_seconds(name: str) -> tuple[float, float]:

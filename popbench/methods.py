@@ -112,6 +112,11 @@ class MethodRecord:
             Result on the same problem with the same options (None: it computes it first), and
             reports ``wall_s`` / ``parallel_s`` as that Result's plus its refinement's [s]; the
             harness passes the refined method's cached cell (:mod:`popbench.harness.refining`).
+        options: ``"module:Class"`` of a dataclass whose fields are options its solve takes
+            through ``**options`` besides its named parameters (so that methods sharing options
+            declare them once: cc-pgo's and ml-pgo's derive from
+            :class:`baselines.rbcd.MethodOptions`), imported on first use
+            (:func:`method_options`); None: its solve names them all.
     """
 
     name: str
@@ -124,6 +129,7 @@ class MethodRecord:
     centralised: bool = False
     episodic: bool = False
     refines: str | None = None
+    options: str | None = None
 
     def checkpoint_path(self) -> Path | None:
         """:attr:`checkpoint` as a path (a ``"package:relative/path"`` resolved against the
@@ -133,13 +139,20 @@ class MethodRecord:
         package, separator, relative = self.checkpoint.partition(":")
         if not separator:
             return Path(self.checkpoint).expanduser()
-        try:
-            found = importlib.util.find_spec(package)
-        except (ImportError, ValueError):
-            return None
-        if found is None or not found.submodule_search_locations:
-            return None
-        return Path(next(iter(found.submodule_search_locations))) / relative
+        folder = package_folder(package)
+        return None if folder is None else folder / relative
+
+
+def package_folder(name: str) -> Path | None:
+    """The folder of an importable package, found without importing it (no torch at startup),
+    or None where there is no such package."""
+    try:
+        found = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    if found is None or not found.submodule_search_locations:
+        return None
+    return Path(next(iter(found.submodule_search_locations)))
 
 
 # The n = 7 V2 actor (any n): the imitation phase of the cpu-imitation-robust run, seed 0 (its
@@ -153,8 +166,12 @@ METHODS: dict[str, MethodRecord] = {
         MethodRecord(
             "gnc", "popbench.solvers.gnc:solve", "GNC", has_inlier_mask=True, centralised=True
         ),
-        MethodRecord("cc-pgo", "baselines.cc_pgo:solve", "CC-PGO"),
-        MethodRecord("ml-pgo", "baselines.ml_pgo:solve", "ML-PGO"),
+        MethodRecord(
+            "cc-pgo", "baselines.cc_pgo:solve", "CC-PGO", options="baselines.cc_pgo:Options"
+        ),
+        MethodRecord(
+            "ml-pgo", "baselines.ml_pgo:solve", "ML-PGO", options="baselines.ml_pgo:Options"
+        ),
         MethodRecord(
             "mm-pgo",
             "baselines.mm_pgo:solve",
@@ -206,8 +223,9 @@ def distributed_methods() -> tuple[str, ...]:
 
 def method_options(name: str) -> tuple[str, ...]:
     """The keyword options the method registered under ``name`` accepts: its solve function's
-    named parameters after ``problem`` and ``budget`` (and those of the method it refines,
-    :attr:`MethodRecord.refines`, which gets its ``**options``). A trailing ``**_`` swallows
+    named parameters after ``problem`` and ``budget``, then the fields of its record's
+    :attr:`~MethodRecord.options` dataclass, then the options of the method it refines
+    (:attr:`MethodRecord.refines`, which gets its ``**options``). A trailing ``**_`` swallows
     anything else, so callers that take options from users should check them against this
     list. A refiner's ``refined`` (a Result the harness passes) is not a user option."""
     names = [
@@ -216,9 +234,11 @@ def method_options(name: str) -> tuple[str, ...]:
         if parameter.kind in (parameter.POSITIONAL_OR_KEYWORD, parameter.KEYWORD_ONLY)
         and parameter.name != "refined"
     ]
-    refined = method_record(name).refines
-    if refined is not None:
-        names += [option for option in method_options(refined) if option not in names]
+    record = method_record(name)
+    if record.options is not None:
+        names += [field.name for field in dataclasses.fields(load_object(record.options))]
+    if record.refines is not None:
+        names += [option for option in method_options(record.refines) if option not in names]
     return tuple(names)
 
 

@@ -1,5 +1,5 @@
-"""Accuracy measures beside the objective: the trajectory error against ground truth and
-bootstrap confidence intervals of a statistic over problems."""
+"""Accuracy measures beside the objective: the trajectory error against ground truth, bootstrap
+confidence intervals of a statistic over problems and Student-t intervals of a mean over seeds."""
 
 from __future__ import annotations
 
@@ -52,6 +52,23 @@ def bootstrap_ci(
     tail = 100 * (1 - level) / 2
     low, high = np.percentile(estimates, [tail, 100 - tail])
     return float(low), float(high)
+
+
+def mean_ci(values: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    """The mean of ``values`` ``(K,)`` (NaNs dropped) and the half-width of its Student-t
+    confidence interval at ``level``, ``t_{(1+level)/2, K−1} · s / √K`` (``s`` the sample
+    standard deviation); the half-width is NaN for fewer than two values (mean NaN for none)."""
+    from scipy import stats
+
+    values = np.asarray(values, dtype=np.float64)
+    values = values[~np.isnan(values)]
+    if values.size == 0:
+        return float("nan"), float("nan")
+    mean = float(values.mean())
+    if values.size < 2:
+        return mean, float("nan")
+    spread = float(values.std(ddof=1)) / np.sqrt(values.size)
+    return mean, float(stats.t.ppf(0.5 + level / 2, values.size - 1) * spread)
 
 
 def roc_auc(scores: np.ndarray, positive: np.ndarray) -> float:

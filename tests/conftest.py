@@ -64,6 +64,27 @@ def ring_g2o(path, n: int = 8, dx: str = "0.77"):
     return path
 
 
+def grid_g2o(path, seed: int = 0):
+    """Write a 4×5 boustrophedon grid walk to ``path``: 19 odometry edges and 12 lattice loop
+    closures, measurements with σ = 0.01 noise, information diag(100, 100, 400)."""
+    rng = np.random.default_rng(seed)
+    cells = [(x, y) for y in range(5) for x in (range(4) if y % 2 == 0 else range(3, -1, -1))]
+    index = {cell: i for i, cell in enumerate(cells)}
+    edges = [(i, i + 1) for i in range(len(cells) - 1)]
+    edges += [
+        (i, index[(x, y + 1)])
+        for (x, y), i in index.items()
+        if (x, y + 1) in index and abs(index[(x, y + 1)] - i) > 1
+    ]
+    lines = [f"VERTEX_SE2 {i} {x} {y} 0" for i, (x, y) in enumerate(cells)]
+    for tail, head in edges:
+        dx, dy = np.subtract(cells[head], cells[tail]) + rng.normal(0.0, 0.01, 2)
+        dtheta = rng.normal(0.0, 0.01)
+        lines.append(f"EDGE_SE2 {tail} {head} {dx:.5f} {dy:.5f} {dtheta:.5f} 100 0 0 100 0 400")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
 def tiny_model():
     """The smallest agents.config.ModelConfig the agent tests train and run (fast on a CPU)."""
     from agents.config import ModelConfig

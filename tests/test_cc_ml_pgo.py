@@ -233,6 +233,9 @@ def test_robot_by_robot_rounds_match_batched_rounds(small_graph):
             robots,
             Budget(iterations=40),
             rbcd.RBCDOptions(batch_below=below),
+            rank=5,
+            certify=False,
+            seed=0,
         )
         for below in (0, 10**9)  # every robot alone / every class one batch
     ]

@@ -111,14 +111,17 @@ def test_table1_figure_writes_png_and_pdf(tmp_path):
     assert all(path.stat().st_size > 1000 for path in paths)
 
 
-def test_outliers_tables_report_mean_and_spread():
+def test_outliers_tables_report_mean_and_interval():
     frame = pd.DataFrame(
         {
             "dataset": "intel",
             "rate": 0.1,
             "method": "mm-pgo",
+            "options": "kernel=huber, robust_mode=authors",
             "seed": [0, 1],
-            "F": [10.0, 14.0],
+            "F": [20.0, 30.0],
+            "F_inliers": [10.0, 14.0],
+            "gap_gnc": [1.0, 2.0],
             "precision": [0.5, 0.7],
             "recall": [1.0, 1.0],
             "paper_F": 3.4e3,
@@ -126,9 +129,12 @@ def test_outliers_tables_report_mean_and_spread():
             "paper_recall": 0.55,
         }
     )
+    half = 12.706204736174707 * np.std([10.0, 14.0], ddof=1) / np.sqrt(2)  # t(0.975, 1 dof)
     markdown = reports.outliers_markdown(frame)
-    assert f"12 ± {np.std([10.0, 14.0], ddof=1):.4g} (3400)" in markdown
-    assert "0.6 ± 0.1414 (0.69)" in markdown
+    assert f"| 12 ± {half:.4g} (3400) |" in markdown
+    assert "MM-PGO (huber, authors)" in markdown.splitlines()[0]
+    assert f"0.6 ± {12.706204736174707 * 0.1:.4g} (0.69)" in markdown
+    assert "| 1 ± 0 (0.55) |" in markdown
     assert r"$\pm$" in reports.outliers_latex(frame)
 
 

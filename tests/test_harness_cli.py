@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import ring_g2o
+from conftest import grid_g2o, ring_g2o
 
 from popbench.cli import main
 
@@ -105,6 +105,34 @@ def _run(capsys, *args):
     code = main([str(arg) for arg in args])
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def test_outliers_table_reports_f_gap_precision_recall_with_intervals(tmp_path, capsys):
+    """Table II on a tiny grid: every cell's inlier F and gap to gnc, the summary's mean and
+    95 % half-width per metric, mm-pgo named with its kernel, the reference without a gap."""
+    graph = grid_g2o(tmp_path / "grid.g2o")
+    out = tmp_path / "o"
+    args = ("run", "outliers", "--datasets", graph, "--robots", "2", "--rate", "0.3")
+    args += ("--methods", "mm-pgo,gnc", "--seeds", "0,1,2", "--iterations", "30")
+    code, _, err = _run(capsys, *args, "--executor", "serial", "--out", out)
+    assert code == 0, err
+    cells = pd.read_csv(out / "outliers.csv")
+    assert len(cells) == 6 and (cells["outliers"] == 4).all()  # round(0.3 × 12) loop closures
+    gnc = cells[cells["method"] == "gnc"]
+    assert (gnc["gap_gnc"].abs() < 1e-12).all() and (gnc["F_inliers"] <= gnc["F"]).all()
+    summary = pd.read_csv(out / "outliers_summary.csv")
+    for metric in ("F_inliers", "gap_gnc", "precision", "recall", "F"):
+        assert {metric, f"{metric}_ci95"} <= set(summary.columns)
+    mm = cells[cells["method"] == "mm-pgo"]
+    row = summary[summary["method"] == "mm-pgo"].iloc[0]
+    assert row["options"] == "kernel=huber, robust_mode=authors" and row["seeds"] == 3
+    assert row["recall"] == pytest.approx(mm["recall"].mean())
+    t = 4.302652729911275  # Student t, 0.975 quantile, 2 degrees of freedom
+    assert row["recall_ci95"] == pytest.approx(t * mm["recall"].std(ddof=1) / 3**0.5)
+    header = (out / "outliers.md").read_text().splitlines()[0]
+    assert "gap to GNC MM-PGO (huber, authors)" in header and "gap to GNC GNC" not in header
+    assert "F (inliers) GNC" in header and "recall MM-PGO (huber, authors)" in header
+    assert r"$\pm$" in (out / "outliers.tex").read_text()
 
 
 def test_an_edited_graph_file_is_recomputed_and_fresh_recomputes(tmp_path, capsys):

@@ -21,6 +21,13 @@ app = typer.Typer(
 )
 
 
+# The datasets a command works on: registered names.
+Names = Annotated[
+    list[str] | None,
+    typer.Argument(help="Registered names (see `popbench datasets list`).", show_default=False),
+]
+
+
 def _status_style(status: str) -> str:
     return {"ok": "green", "missing": "yellow"}.get(status, "red")
 
@@ -53,10 +60,7 @@ def datasets_list() -> None:
 
 @app.command("fetch")
 def datasets_fetch(
-    names: Annotated[
-        list[str] | None,
-        typer.Argument(help="Registered names (see `popbench datasets list`).", show_default=False),
-    ] = None,
+    names: Names = None,
     fetch_all: Annotated[bool, typer.Option("--all", help="Fetch every registered file.")] = False,
 ) -> None:
     """Download datasets that are not on disk yet (with their ground truth) and verify them.
@@ -75,13 +79,9 @@ def datasets_fetch(
 
 
 @app.command("verify")
-def datasets_verify(
-    names: Annotated[
-        list[str] | None,
-        typer.Argument(help="Names to check (default: every registered file).", show_default=False),
-    ] = None,
-) -> None:
-    """Check the sha256 of local copies (nothing is downloaded); exit status 1 if any is bad."""
+def datasets_verify(names: Names = None) -> None:
+    """Check the sha256 of local copies of the named datasets (default: every registered file;
+    nothing is downloaded); exit status 1 if any is bad."""
     from rich.console import Console
     from rich.table import Table
 

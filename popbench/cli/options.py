@@ -4,8 +4,8 @@ Lists are comma-separated (``--datasets intel,mit --robots 3,7``); every parser 
 :class:`~popbench.errors.ValueRangeError` (one line, exit status 2) on a bad value. The
 ``Annotated`` aliases (:data:`Jobs`, :data:`Executor`, :data:`Address`, :data:`Threads`,
 :data:`Fresh`, :data:`Iterations`, :data:`Out`) give every experiment the same option with the
-same help; :func:`runs_cells` gives
-them to an experiment command at once, as one :class:`~popbench.harness.executors.Run`.
+same help; :func:`runs_cells` gives an experiment command the run options at once, as one
+:class:`~popbench.harness.executors.Run`.
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ interrupted run resumes where it stopped; ``--fresh`` recomputes every cell. ``-
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import typer
@@ -25,17 +26,23 @@ app = typer.Typer(
 )
 
 
-@app.command(
+def experiment(name: str, *examples: str) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Register an experiment command as ``popbench run NAME``: its ``--help`` epilog (the
+    ``examples``, the cache and parallel notes) and the run options (:func:`options.runs_cells`)."""
+
+    def register(command: Callable[..., None]) -> Callable[..., None]:
+        return app.command(name, epilog=options.epilog(*examples))(options.runs_cells(command))
+
+    return register
+
+
+@experiment(
     "table1",
-    epilog=options.epilog(
-        "popbench run table1 --quick                      # mit, n = 3, 100 rounds",
-        "popbench run table1 --jobs 1                     # one cell at a time",
-        "popbench run table1 --executor ray --address HEAD:6379",
-        "popbench run table1 --datasets intel,my.g2o --robots 3,7 --methods mm-pgo "
-        "--out results/mine",
-    ),
+    "popbench run table1 --quick                      # mit, n = 3, 100 rounds",
+    "popbench run table1 --jobs 1                     # one cell at a time",
+    "popbench run table1 --executor ray --address HEAD:6379",
+    "popbench run table1 --datasets intel,my.g2o --robots 3,7 --methods mm-pgo --out results/mine",
 )
-@options.runs_cells
 def table1_command(
     *,
     datasets: str = typer.Option(
@@ -106,21 +113,18 @@ def table1_command(
     )
 
 
-@app.command(
+@experiment(
     "outliers",
-    epilog=options.epilog(
-        "popbench run outliers --rate 0.025,0.05,0.1       # the paper's Table II",
-        "popbench run outliers --datasets intel --seeds 0 --iterations 100 --out results/o",
-    ),
+    "popbench run outliers --rate 0.025,0.05,0.1       # the paper's Table II",
+    "popbench run outliers --datasets intel --seeds 0 --iterations 100 --out results/o",
 )
-@options.runs_cells
 def outliers_command(
     *,
     rate: str = typer.Option("0.1", help="Outlier rates (fractions), e.g. 0.025,0.05,0.1."),
     datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
     methods: str = typer.Option("prop-v1,mm-pgo,gnc", help="Methods (need an inlier mask)."),
     robots: int = typer.Option(7, min=1, help="Team size."),
-    seeds: str = typer.Option("0,1,2", help="Seeds: outlier draw and methods."),
+    seeds: str = typer.Option("0,1,2,3,4", help="Seeds: outlier draw and methods."),
     iterations: options.Iterations = 1000,
     kernel: str = typer.Option(
         None,
@@ -140,8 +144,9 @@ def outliers_command(
 ) -> None:
     """The paper's Table II: F, outlier precision and recall with corrupted loop closures.
 
-    Writes OUT/outliers.csv, outliers.md and outliers.tex. Every dataset is loaded and the team
-    size checked before anything is computed.
+    Writes OUT/outliers.csv (one row per cell), outliers_summary.csv, outliers.md and outliers.tex
+    (mean ± 95 % half-width over seeds beside the paper's numbers). Every dataset is loaded and
+    the team size checked before anything is computed.
     """
     from popbench.harness.outliers import OutliersConfig, run_outliers
     from popbench.outliers import CANDIDATE_SETS
@@ -161,17 +166,15 @@ def outliers_command(
         out=out,
     )
     frame = run_outliers(config, run)
-    typer.echo(f"{len(frame)} cells -> {config.out}/outliers.csv, outliers.md, outliers.tex")
+    written = "outliers.csv, outliers_summary.csv, outliers.md, outliers.tex"
+    typer.echo(f"{len(frame)} cells -> {config.out}/{written}")
 
 
-@app.command(
+@experiment(
     "scalability",
-    epilog=options.epilog(
-        "popbench run scalability                            # m3500, n = 1 … 70",
-        "popbench run scalability --dataset intel --robots 1,3,7 --methods mm-pgo --out results/s",
-    ),
+    "popbench run scalability                            # m3500, n = 1 … 70",
+    "popbench run scalability --dataset intel --robots 1,3,7 --methods mm-pgo --out results/s",
 )
-@options.runs_cells
 def scalability_command(
     *,
     dataset: str = typer.Option("m3500", help="Dataset."),
@@ -204,17 +207,14 @@ def scalability_command(
 HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
 
 
-@app.command(
+@experiment(
     "heldout",
-    epilog=options.epilog(
-        "popbench run heldout                               # V2, n = 7, 100 problems, every row",
-        "popbench run heldout --rows no-op,prop-v1,local-lm --checkpoint runs/a/actor.pt",
-        "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus aligned-admm",
-        "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
-        "popbench run heldout --problems 30 --rows no-op,prop-v1 --outlier-rate 0.1",
-    ),
+    "popbench run heldout                               # V2, n = 7, 100 problems, every row",
+    "popbench run heldout --rows no-op,prop-v1,local-lm --checkpoint runs/a/actor.pt",
+    "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus aligned-admm",
+    "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
+    "popbench run heldout --problems 30 --rows no-op,prop-v1 --outlier-rate 0.1",
 )
-@options.runs_cells
 def heldout_command(
     *,
     noise: str = typer.Option("V2", help="Synthetic noise levels: V1, V2, V3 (comma list)."),

@@ -17,18 +17,17 @@ mask, and the scalars and extras as JSON), which the refiner's cell starts from;
 from __future__ import annotations
 
 import hashlib
-import importlib.util
+import itertools
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from popbench.methods import Result
+from popbench.methods import METHODS, Result, method_record, package_folder
 
 # The packages whose code computes a cell: the core, the baselines, the agents and their envs.
 CODE_PACKAGES = ("popbench", "baselines", "agents", "envs")
@@ -38,17 +37,6 @@ def cell_key(spec: Mapping[str, Any]) -> str:
     """A stable 16-hex-digit key of a cell specification."""
     canonical = json.dumps(spec, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
-
-
-def _package_dir(name: str) -> Path | None:
-    """The folder of an importable package, found without importing it (no torch at startup)."""
-    try:
-        found = importlib.util.find_spec(name)
-    except (ImportError, ValueError):
-        return None
-    if found is None or not found.submodule_search_locations:
-        return None
-    return Path(next(iter(found.submodule_search_locations)))
 
 
 def source_fingerprint(folders: Iterable[Path | None]) -> str:
@@ -75,7 +63,7 @@ def code_fingerprint() -> str:
     :data:`CODE_PACKAGES` (computed once per process; about 600 kB of source)."""
     from popbench import __version__
 
-    return f"{__version__}+{source_fingerprint(_package_dir(p) for p in CODE_PACKAGES)}"
+    return f"{__version__}+{source_fingerprint(package_folder(p) for p in CODE_PACKAGES)}"
 
 
 def dataset_sha256(dataset: str) -> str:
@@ -91,8 +79,6 @@ def dataset_sha256(dataset: str) -> str:
 def checkpoint_path(method: str) -> Path | None:
     """The checkpoint file the registered ``method`` depends on (its record's
     :attr:`~popbench.methods.MethodRecord.checkpoint`), or None."""
-    from popbench.methods import method_record
-
     return method_record(method).checkpoint_path()
 
 
@@ -107,12 +93,24 @@ def checkpoint_sha256(method: str) -> str | None:
 def provenance(dataset: str, method: str | None = None) -> dict[str, Any]:
     """What a cell on ``dataset`` with ``method`` was computed from, for its specification
     (with the checkpoint's sha256 for a method whose record names one)."""
-    from popbench.methods import METHODS
-
     inputs: dict[str, Any] = {"code": code_fingerprint(), "dataset_sha256": dataset_sha256(dataset)}
     if method in METHODS and METHODS[method].checkpoint is not None:
         inputs["checkpoint_sha256"] = checkpoint_sha256(method)
     return inputs
+
+
+def grid_specs(
+    experiment: str, axes: Mapping[str, Sequence[Any]], shared: Mapping[str, Any]
+) -> list[dict[str, Any]]:
+    """One cell specification per point of the product of ``axes`` (in their order, the last
+    varying fastest; they include ``dataset`` and ``method``): the point, the options every
+    cell shares (``shared``) and what the cell is computed from (:func:`provenance`)."""
+    specs = []
+    for values in itertools.product(*axes.values()):
+        point = dict(zip(axes, values, strict=True))
+        inputs = provenance(point["dataset"], point["method"])
+        specs.append({**inputs, "experiment": experiment, **point, **shared})
+    return specs
 
 
 class CellCache:

@@ -20,7 +20,7 @@ import pandas as pd
 
 from popbench.distributed import DistributedProblem
 from popbench.harness import problems, profiles, reports
-from popbench.harness.cache import provenance
+from popbench.harness.cache import grid_specs, provenance
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table1_cell
 from popbench.harness.profiles import GAP_COLUMNS
@@ -61,24 +61,15 @@ class Table1Config:
 
 def cell_specs(config: Table1Config) -> list[Spec]:
     """One specification per table cell, in table order, with what it is computed from
-    (:func:`popbench.harness.cache.provenance`: dataset file, code and actor checkpoint)."""
-    return [
-        {
-            **provenance(dataset, method),
-            "experiment": "table1",
-            "dataset": dataset,
-            "robots": robots,
-            "method": method,
-            "seed": seed,
-            "iterations": config.iterations,
-            "init": config.init,
-            "partition": config.partition,
-        }
-        for dataset in config.datasets
-        for robots in config.robots
-        for method in config.methods
-        for seed in config.seeds
-    ]
+    (:func:`popbench.harness.cache.grid_specs`: dataset file, code and actor checkpoint)."""
+    axes = {
+        "dataset": config.datasets,
+        "robots": config.robots,
+        "method": config.methods,
+        "seed": config.seeds,
+    }
+    shared = {"iterations": config.iterations, "init": config.init, "partition": config.partition}
+    return grid_specs("table1", axes, shared)
 
 
 def optimum_spec(dataset: str) -> Spec:
