@@ -3,9 +3,9 @@
 Lists are comma-separated (``--datasets intel,mit --robots 3,7``); every parser raises
 :class:`~popbench.errors.ValueRangeError` (one line, exit status 2) on a bad value. The
 ``Annotated`` aliases (:data:`Jobs`, :data:`Executor`, :data:`Address`, :data:`Threads`,
-:data:`Fresh`, :data:`Iterations`, :data:`Out`) give every experiment the same option with the
-same help; :func:`runs_cells` gives an experiment command the run options at once, as one
-:class:`~popbench.harness.executors.Run`.
+:data:`Fresh`, :data:`Iterations`, :data:`Out`, :data:`Init`, :data:`TeamSizes`) give every
+experiment the same option with the same help; :func:`runs_cells` gives an experiment command
+the run options at once, as one :class:`~popbench.harness.executors.Run`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,6 @@ COMMAND_THREADS_HELP = (
     "BLAS / OpenMP / torch threads, pinned whatever OMP_NUM_THREADS says (default 1: an "
     "unpinned torch pool competing for a busy core made prop-v1 16-53x slower)."
 )
-INIT_HELP = "Initial estimate for every method: odometry | chordal | given."
 
 Jobs = Annotated[
     int | None, typer.Option("--jobs", "-j", min=1, help=JOBS_HELP, show_default=False)
@@ -62,6 +61,10 @@ CommandThreads = Annotated[int, typer.Option(min=1, help=COMMAND_THREADS_HELP)]
 Fresh = Annotated[bool, typer.Option("--fresh", help=FRESH_HELP)]
 Iterations = Annotated[int, typer.Option(min=1, help="Rounds for the iterative methods.")]
 Out = Annotated[Path, typer.Option(help="Output folder.")]
+Init = Annotated[
+    str, typer.Option(help="Initial estimate for every method: odometry | chordal | given.")
+]
+TeamSizes = Annotated[str, typer.Option(help="Team sizes (comma list).")]
 
 
 # The options of how an experiment's cells run, in --help's order, with their defaults.

@@ -66,7 +66,7 @@ def table1_command(
         show_default=False,
     ),
     seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
-    init: str = typer.Option("odometry", help=options.INIT_HELP),
+    init: options.Init = "odometry",
     partition: str = typer.Option("metis", help="metis | contiguous."),
     out: Path = typer.Option(
         None,
@@ -178,10 +178,10 @@ def outliers_command(
 def scalability_command(
     *,
     dataset: str = typer.Option("m3500", help="Dataset."),
-    robots: str = typer.Option("1,2,3,5,7,10,14,20,28,35,50,70", help="Team sizes."),
+    robots: options.TeamSizes = "1,2,3,5,7,10,14,20,28,35,50,70",
     methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods."),
     iterations: options.Iterations = 1000,
-    init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
+    init: options.Init = "odometry",
     out: options.Out = Path("results/scalability"),
     run: Run,
 ) -> None:
@@ -218,7 +218,7 @@ HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
 def heldout_command(
     *,
     noise: str = typer.Option("V2", help="Synthetic noise levels: V1, V2, V3 (comma list)."),
-    robots: str = typer.Option("7", help="Team sizes (comma list)."),
+    robots: options.TeamSizes = "7",
     problems: int = typer.Option(
         100, min=1, help="Held-out problems per (noise, team size); seeds 2^32 + k."
     ),
