@@ -211,7 +211,7 @@ HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
     "heldout",
     "popbench run heldout                               # V2, n = 7, 100 problems, every row",
     "popbench run heldout --rows no-op,prop-v1,local-lm --checkpoint runs/a/actor.pt",
-    "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus aligned-admm",
+    "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus admm",
     "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
     "popbench run heldout --problems 30 --rows no-op,prop-v1 --outlier-rate 0.1",
 )
