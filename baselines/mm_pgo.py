@@ -780,8 +780,8 @@ def edge_weights(
     closure is never flagged); None for the kernel ``none``. When ``problem.outlier_mask`` is
     given, ``extras`` has ``precision``/``recall`` of the flagged edges.
     """
-    under = np.isin(graph.kinds, np.array(kinds, dtype=np.int8))
-    return np.where(under, robust.weights(kernel, robust_costs(graph, poses, kinds), scale), 1.0)
+    # s = 0 off the kernel's kinds, where every kernel's weight is exactly 1
+    return robust.weights(kernel, robust_costs(graph, poses, kinds), scale)
 
 
 def solve(
@@ -939,10 +939,10 @@ def solve(
     }
     inlier_mask = None
     if kernel != "none":
-        final_weights = edge_weights(graph, poses, kernel, kernel_scale, mode.kinds)
-        # s = 0 off the kernel's kinds: never flagged (flag_bound > 0)
-        inlier_mask = ~robust.flagged(kernel, robust_costs(graph, poses, mode.kinds), flag_bound)
-        extras["weights"] = final_weights
+        final_costs = robust_costs(graph, poses, mode.kinds)
+        # s = 0 off the kernel's kinds: weight 1, never flagged (flag_bound > 0)
+        inlier_mask = ~robust.flagged(kernel, final_costs, flag_bound)
+        extras["weights"] = robust.weights(kernel, final_costs, kernel_scale)
         if problem.outlier_mask is not None:
             extras["precision"], extras["recall"] = precision_recall(
                 ~inlier_mask, problem.outlier_mask
