@@ -7,10 +7,15 @@ Layout (a plain dict, loaded with `torch.load(weights_only=True)`):
     temperatures), "optimisers": {name: state_dict}, "frames": int, "updates": int.
 The replay buffer is not stored: a resumed run refills it (updates restart once it holds one
 minibatch). `load_actor` needs only "config", "dims" and "actor" — what prop-v1 uses at inference.
+Optional "outlier_gate": {"config": OutlierGateConfig as a dict, "encoder": state_dict,
+"threshold": float, "epochs": [{epoch, loss, validation_auc}], "best_epoch": int, "seconds":
+float}, the fitted outlier gate (agents.gate_training, `add_outlier_gate`).
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -18,7 +23,8 @@ from typing import Any
 import torch
 
 from agents.actor import HybridActor
-from agents.config import TrainConfig
+from agents.config import OutlierGateConfig, TrainConfig
+from agents.outlier_gate import OutlierGate
 from popbench.errors import PopbenchError
 
 CHECKPOINT_FORMAT = 1
@@ -74,3 +80,38 @@ def export_actor(run_checkpoint: str | Path, path: str | Path) -> Path:
     state = read_checkpoint(run_checkpoint)
     keep = ("config", "dims", "actor", "frames", "updates")
     return save_checkpoint(path, {key: state[key] for key in keep})
+
+
+def add_outlier_gate(
+    path: str | Path,
+    out: str | Path,
+    config: OutlierGateConfig,
+    gate: OutlierGate,
+    epochs: list[dict[str, float]],
+    best_epoch: int,
+    seconds: float,
+) -> Path:
+    """Write checkpoint ``path`` to ``out`` (which may be ``path``) with the fitted outlier
+    gate (module docstring; agents.gate_training.GateFit's fields); a previous one is
+    replaced."""
+    state = read_checkpoint(path)
+    state["outlier_gate"] = {
+        "config": dataclasses.asdict(config),
+        "encoder": gate.encoder.state_dict(),
+        "threshold": gate.threshold,
+        "epochs": epochs,
+        "best_epoch": best_epoch,
+        "seconds": seconds,
+    }
+    return save_checkpoint(out, state)
+
+
+def load_outlier_gate(path: str | Path, device: str | torch.device = "cpu") -> OutlierGate | None:
+    """The fitted outlier gate of a checkpoint (its encoder in eval mode), or None without one."""
+    state = read_checkpoint(path, device)
+    if "outlier_gate" not in state:
+        return None
+    actor, _ = load_actor(path, device)
+    encoder = copy.deepcopy(actor.encoder)
+    encoder.load_state_dict(state["outlier_gate"]["encoder"])
+    return OutlierGate(encoder.eval(), float(state["outlier_gate"]["threshold"]))

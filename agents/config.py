@@ -226,6 +226,34 @@ class ImitationConfig:
 
 
 @dataclass(frozen=True)
+class OutlierGateConfig:
+    """Fitting the outlier gate of a trained actor (agents.gate_training, ``popbench
+    train-gate``; beyond the paper, docs/outliers.md).
+
+    Attributes:
+        problems: training problems (synthetic, the actor's noise level and team size), each
+            one reconciled state after the actor's episode and the consensus.
+        validation: further problems, for the choice of the epoch (the best validation ROC AUC).
+        epochs: passes over the training states (one problem per Adam step).
+        lr: Adam learning rate.
+        outlier_rate_max: each problem's outlier rate is drawn from U(0, outlier_rate_max).
+        gate_l1: weight of the gates' L1 penalty beside the supervised gate loss (weight 1).
+        consensus: the consensus the states are reconciled with (popbench.reconcile; None:
+            its default, the one prop-v1 runs).
+        seed: seed of the problem streams and the shuffling.
+    """
+
+    problems: int = 160
+    validation: int = 16
+    epochs: int = 10
+    lr: float = 1e-3
+    outlier_rate_max: float = 0.2
+    gate_l1: float = 1e-5
+    consensus: str | None = None
+    seed: int = 0
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """The parts together (what `popbench train` builds and `agents.trainer.train` reads)."""
 

@@ -23,7 +23,14 @@ import numpy as np
 import torch
 
 from agents.config import TRAJECTORY_TASK
-from agents.methods import CHECKPOINT_DIR, DEFAULT_CHECKPOINT, cached_actor, run_episode
+from agents.methods import (
+    CHECKPOINT_DIR,
+    DEFAULT_CHECKPOINT,
+    cached_actor,
+    flag_gate,
+    run_episode,
+)
+from agents.outlier_gate import candidate_auc
 from popbench import objective
 from popbench.datasets import file_sha256
 from popbench.distributed import DistributedProblem
@@ -137,20 +144,22 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
     raise NotImplementedError(f"held-out row {row!r}")
 
 
-def gate_scores(problem: DistributedProblem, gate: np.ndarray) -> dict[str, float]:
+def gate_scores(
+    problem: DistributedProblem, gate: np.ndarray, threshold: float
+) -> dict[str, float]:
     """The actor's gate as an outlier classifier over the candidate edges (the loop closures,
     popbench.outliers.candidate_mask): ``gate_auc``, the ROC AUC of the outlier score 1 − gate
-    (NaN without an outlier), and the counts behind precision and recall at the inference
-    threshold (an edge is flagged when its gate is ≤ 0.5 in a robot that holds it, as prop-v1
-    flags it): ``gate_flagged``, ``gate_true`` (injected outliers) and ``gate_hits``."""
-    from popbench.metrics import roc_auc
+    (agents.outlier_gate.candidate_auc; NaN without an outlier), and the counts behind precision
+    and recall at the inference ``threshold`` (an edge is flagged when its gate is ≤ it in a
+    robot that holds it, as prop-v1 flags it): ``gate_flagged``, ``gate_true`` (injected
+    outliers) and ``gate_hits``."""
     from popbench.outliers import candidate_mask
 
     among = candidate_mask(problem.graph)
     truth = problem.outlier_mask[among]
-    flagged = gate[among] <= 0.5
+    flagged = gate[among] <= threshold
     return {
-        "gate_auc": roc_auc(1.0 - gate[among], truth),
+        "gate_auc": candidate_auc(problem, gate),
         "gate_flagged": float(flagged.sum()),
         "gate_true": float(truth.sum()),
         "gate_hits": float((flagged & truth).sum()),
@@ -173,17 +182,20 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
     if spec["row"] == "initial":
         f = objective.objective(graph, graph.poses)
         return {"F": f, "ATE": ate(graph.poses, graph.ground_truth), "F_local": f}
-    scores: dict[str, float] = {}
-    if spec["row"] in ("prop-v1", "imitation"):
+    learned = spec["row"] in ("prop-v1", "imitation")
+    if learned:
         actor, task = cached_actor(spec["checkpoint"], "cpu")
         with torch.no_grad():
             run = run_episode(actor, problem, task=task)
         local = run.local_poses
-        if rate > 0:
-            scores = gate_scores(problem, run.gate)
     else:
         local = local_estimates(spec["row"], problem, spec)
     reconciled = reconcile(problem, local, spec["consensus"])
+    scores: dict[str, float] = {}
+    if learned and rate > 0:  # the gate prop-v1 flags from (agents.methods.flag_gate)
+        scores = gate_scores(
+            problem, *flag_gate(problem, run, reconciled.poses, spec["checkpoint"], task)
+        )
     return {
         "F": objective.objective(graph, reconciled.poses),
         "ATE": ate(reconciled.poses, graph.ground_truth),

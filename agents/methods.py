@@ -22,8 +22,10 @@ Result fields
     at each entry (the setup / n plus the steps' step_s / n so far, the final entry also the
     consensus's, so it equals parallel_s). prop-v2 appends F after each LM step, at prop-v1's
     parallel_s plus the LM's wall time so far (its last entry: parallel_s). inlier_mask: an edge is
-    an outlier when the layer-averaged gate of its final actor pass is ≤ 0.5 in *either* robot
-    that holds it (an inter-robot edge is seen by two robots; one flag suffices). messages: the
+    an outlier when its layer-averaged gate is ≤ 0.5 in *either* robot that holds it (an
+    inter-robot edge is seen by two robots; one flag suffices) — the gate of the checkpoint's
+    outlier gate at the reconciled estimate, against its fitted threshold, when it has one
+    (agents.outlier_gate), else of the episode's final actor pass (the paper's). messages: the
     alignment's and the consensus's pose messages (the actor steps exchange nothing).
     parallel_s (simulated makespan): the robots' actors run batched in one process here, so each
     step's wall time is attributed evenly, step_s / n per robot (a lower bound on a robot acting
@@ -50,10 +52,11 @@ import numpy as np
 import torch
 
 from agents.actor import HybridActor
-from agents.checkpoint import load_actor
+from agents.checkpoint import load_actor, load_outlier_gate
 from agents.config import PAPER_TASK, TaskConfig
 from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
+from agents.outlier_gate import GATE_THRESHOLD, OutlierGate, reconciled_gate
 from popbench import objective
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result, method_record
@@ -70,16 +73,14 @@ class Episode:
 
     Attributes:
         local_poses: each robot's local copy, rows in `problem.local_vertices(r)` order.
-        inlier_mask: (M,) bool over the global edges (see the module docstring).
         gate: (M,) the smallest layer-averaged gate of each global edge over the robots that
-            hold it (inlier_mask is gate > 0.5; 1 − gate is the outlier score).
+            hold it in the final actor pass (1 − gate is the outlier score).
         history: (T + 1,) F of the copies after each step (module docstring).
         step_s: (T,) wall time of each batched step [s].
         setup_s: packing the problem and the first full GNN pass [s].
     """
 
     local_poses: list[np.ndarray]
-    inlier_mask: np.ndarray
     gate: np.ndarray
     history: np.ndarray
     step_s: np.ndarray
@@ -92,6 +93,31 @@ def cached_actor(path: str, device: str) -> tuple[HybridActor, TaskConfig]:
     process."""
     actor, config = load_actor(path, device)
     return actor, config.task
+
+
+@lru_cache(maxsize=4)
+def cached_outlier_gate(path: str, device: str) -> OutlierGate | None:
+    """The fitted outlier gate of a checkpoint file (None without one), loaded once per
+    process."""
+    return load_outlier_gate(path, device)
+
+
+def flag_gate(
+    problem: DistributedProblem,
+    episode: Episode,
+    poses: np.ndarray,
+    checkpoint: str | Path,
+    task: TaskConfig,
+    device: str = "cpu",
+) -> tuple[np.ndarray, float]:
+    """``(gate, threshold)``: the ``(M,)`` gate prop-v1 flags outliers from (an edge is
+    flagged when its gate is ≤ ``threshold``; 1 − gate is the outlier score) — the
+    checkpoint's outlier gate at the reconciled ``poses`` ``(N, 3)`` with its threshold when it
+    has one (agents.outlier_gate), else ``episode.gate`` and ½."""
+    fitted = cached_outlier_gate(str(checkpoint), device)
+    if fitted is None:
+        return episode.gate, GATE_THRESHOLD
+    return reconciled_gate(fitted.encoder, task, problem, poses), fitted.threshold
 
 
 def run_episode(
@@ -150,14 +176,9 @@ def run_episode(
         if seconds is not None and time.perf_counter() - start > seconds:
             break
 
-    flagged = edge_mask & ~policy.inliers()
-    outlier = np.zeros(problem.graph.num_edges, dtype=bool)
-    outlier[edge_ids[flagged].numpy()] = True
     gate = np.ones(problem.graph.num_edges)
     np.minimum.at(gate, edge_ids[edge_mask].numpy(), policy.gate_means()[edge_mask].numpy())
-    return Episode(
-        core.local_poses(0), ~outlier, gate, np.array(history), np.array(step_s), setup_s
-    )
+    return Episode(core.local_poses(0), gate, np.array(history), np.array(step_s), setup_s)
 
 
 def solve_prop_v1(
@@ -188,11 +209,14 @@ def solve_prop_v1(
     budget = budget or Budget()
     started = time.perf_counter()
     torch.manual_seed(seed)
-    actor, task = cached_actor(str(checkpoint or DEFAULT_CHECKPOINT), device)
+    checkpoint = str(checkpoint or DEFAULT_CHECKPOINT)
+    actor, task = cached_actor(checkpoint, device)
     with torch.no_grad():
         episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done, task=task)
     graph = problem.graph
     reconciled = reconcile(problem, episode.local_poses, consensus, consensus_iterations)
+    gate, threshold = flag_gate(problem, episode, reconciled.poses, checkpoint, task, device)
+    inlier_mask = gate > threshold
     costs = objective.evaluate(graph, reconciled.poses)
     history = episode.history.copy()
     history[-1] = costs.F
@@ -208,7 +232,7 @@ def solve_prop_v1(
         iterations=int(episode.step_s.size),
         history=history,
         history_s=history_s,
-        inlier_mask=episode.inlier_mask,
+        inlier_mask=inlier_mask,
         messages=reconciled.messages,
         extras={
             "F_init": objective.objective(graph, graph.poses),
@@ -219,7 +243,7 @@ def solve_prop_v1(
             "step_ms_mean": 1e3 * float(episode.step_s.mean()) if episode.step_s.size else 0.0,
             "actor_s": episode.setup_s + float(episode.step_s.sum()),
             "consensus_s": reconciled.wall_s,
-            "flagged_outliers": int(np.count_nonzero(~episode.inlier_mask)),
+            "flagged_outliers": int(np.count_nonzero(~inlier_mask)),
         },
     )
 

@@ -1,6 +1,12 @@
 """prop-v1's actor stage on every registered dataset (issue 14): F at the start, after the
 actor's episode (before the consensus) and after the consensus, beside local-lm and mm-pgo.
 
+F_actor is F of the assembled estimate (each pose from its owner) after the episode; F_copies
+is what the robots' episode lowers, F of their local copies with each inter-robot edge half
+from each robot (prop-v1's history); F_aligned is F_actor after the consensus's frame
+alignment. "lm F_local" is local-lm's assembled estimate: the robots' local optima before the
+consensus, the bound a local policy chases.
+
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/eval_prop.py
     (options: --robots 7 --checkpoint PATH --datasets intel,mit,... --consensus admm)
 
@@ -33,8 +39,9 @@ def main() -> None:
     torch.set_num_threads(1)
     print(f"checkpoint: {args.checkpoint}; n = {args.robots}; odometry start")
     print(
-        f"{'dataset':>12} {'F_init':>11} {'F_actor':>11} {'prop-v1 F':>11} {'v1 s':>6} "
-        f"{'local-lm F':>11} {'mm-pgo F':>11} {'actor lowers F':>15}"
+        f"{'dataset':>12} {'F_init':>11} {'F_copies':>11} {'F_actor':>11} {'F_aligned':>11} "
+        f"{'prop-v1 F':>11} {'v1 s':>6} {'lm F_local':>11} {'local-lm F':>11} {'mm-pgo F':>11} "
+        f"{'actor lowers F':>15}"
     )
     for name in args.datasets.split(","):
         problem = distributed_problem(name, args.robots, "odometry")
@@ -44,9 +51,12 @@ def main() -> None:
         local = get_method("local-lm")(problem, Budget(), consensus=args.consensus)
         mm = get_method("mm-pgo")(problem, Budget(1000))
         f_init, f_actor = v1.extras["F_init"], v1.extras["F_actor"]
+        f_copies = v1.history[-2] if v1.history.size > 1 else f_init  # [-1] is after consensus
         print(
-            f"{name:>12} {f_init:>11.5g} {f_actor:>11.5g} {v1.F:>11.5g} {v1_s:>6.1f} "
-            f"{local.F:>11.5g} {mm.F:>11.5g} {str(f_actor < f_init):>15}",
+            f"{name:>12} {f_init:>11.5g} {f_copies:>11.5g} {f_actor:>11.5g} "
+            f"{v1.extras['F_aligned']:>11.5g} {v1.F:>11.5g} {v1_s:>6.1f} "
+            f"{local.extras['F_local']:>11.5g} {local.F:>11.5g} {mm.F:>11.5g} "
+            f"{str(f_actor < f_init):>15}",
             flush=True,
         )
 

@@ -7,6 +7,7 @@ as the methods' solve functions are), so ``popbench`` never imports ``agents`` a
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
@@ -18,6 +19,8 @@ from popbench.errors import ValueRangeError
 TRAINING = {
     "presets": "agents.config:PRESETS",  # dict[str, agents.config.TrainConfig]
     "train": "agents.trainer:train",  # (TrainConfig, resume=bool) -> a run with .summary()
+    "gate_config": "agents.config:OutlierGateConfig",
+    "fit_gate": "agents.gate_training:fit_checkpoint",  # (path, out, config) -> summary str
 }
 
 
@@ -113,3 +116,42 @@ def train_command(
     with limited_threads(threads):
         summary = run_training(config, resume=resume).summary()
     typer.echo(summary)
+
+
+GATE_EPILOG = (
+    "Examples:\n\n"
+    "  popbench train-gate agents/checkpoints/imitation-V2-n7-robust.pt\n\n"
+    "  popbench train-gate runs/r/imitation-actor.pt --out runs/r/gated.pt --problems 40\n\n"
+    "Runs the actor's episode and the consensus on PROBLEMS + VALIDATION synthetic problems "
+    "with injected outliers (the actor's team size and noise level), fits a copy of its "
+    "encoder to flag the outliers at the reconciled estimate, and writes the checkpoint with "
+    "it (prop-v1 then flags from it; docs/outliers.md)."
+)
+
+
+def train_gate_command(
+    checkpoint: Annotated[Path, typer.Argument(help="Actor checkpoint (.pt).")],
+    out: Annotated[
+        Path | None, typer.Option(help="Where to write it (default: over CHECKPOINT).")
+    ] = None,
+    problems: Annotated[int, typer.Option(min=1, help="Training problems.")] = 160,
+    validation: Annotated[
+        int, typer.Option(min=1, help="Validation problems (choose the epoch).")
+    ] = 16,
+    epochs: Annotated[int, typer.Option(min=1, help="Passes over the training states.")] = 10,
+    seed: Annotated[int, typer.Option(help="Seed of the problem streams and shuffling.")] = 0,
+    threads: CommandThreads = 1,
+) -> None:
+    """Fit the outlier gate of a trained actor: its gated encoder re-run after the consensus."""
+    import dataclasses
+
+    from popbench.methods import load_object
+    from popbench.threads import limited_threads
+
+    defaults = load_object(TRAINING["gate_config"])()  # agents.config.OutlierGateConfig
+    config = dataclasses.replace(
+        defaults, problems=problems, validation=validation, epochs=epochs, seed=seed
+    )
+    fit = load_object(TRAINING["fit_gate"])  # agents.gate_training.fit_checkpoint
+    with limited_threads(threads):
+        typer.echo(fit(checkpoint, out or checkpoint, config))

@@ -1,0 +1,127 @@
+"""The outlier gate: the actor's gated encoder run once more, on the robots' local graphs at the
+reconciled estimate (beyond the paper; docs/outliers.md).
+
+During the episode a robot's separator copies are placed from its own map, so an inter-robot
+loop closure that is the only edge to its copy has a zero residual, outlier or not; after the
+consensus every copy holds its owner's value and an outlier's residual shows. A checkpoint may
+carry an encoder fitted for that state (agents.gate_training) with its flag threshold; prop-v1
+then flags an edge when that encoder's layer-averaged gate is ≤ the threshold in a robot that
+holds it, and otherwise when the episode's own final gate is ≤ ½.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from agents.config import TaskConfig
+from agents.encoder import GraphBatch, GraphEncoder
+from popbench.distributed import DistributedProblem
+
+GATE_THRESHOLD = 0.5  # the episode gate's flag threshold (the hard-concrete relaxation's median)
+
+
+@dataclasses.dataclass
+class OutlierGate:
+    """A fitted outlier gate: the encoder and its flag threshold (an edge is an outlier when its
+    gate is ≤ ``threshold``; chosen on the fit's validation problems, agents.gate_training)."""
+
+    encoder: GraphEncoder
+    threshold: float
+
+
+@dataclasses.dataclass
+class GateState:
+    """The robots' local graphs at one estimate, packed for the encoder.
+
+    Attributes:
+        graphs: the G = n local graphs (envs.core's observation; no separator placement).
+        edge_ids: (n, E) long, the global id of each local edge slot (−1 on padding).
+        edge_mask: (n, E) bool, real edge slots.
+        outlier: (n, E) bool, injected outliers (a training label, never an input).
+        num_edges: M, the global graph's edge count.
+    """
+
+    graphs: GraphBatch
+    edge_ids: Tensor
+    edge_mask: Tensor
+    outlier: Tensor
+    num_edges: int
+
+
+def reconciled_state(problem: DistributedProblem, poses: np.ndarray, task: TaskConfig) -> GateState:
+    """Every robot's local graph with each vertex, owned or a separator copy, at its global
+    ``poses`` ``(N, 3)`` value, observed as in the environment ``task``."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    at = dataclasses.replace(problem, graph=problem.graph.replace(poses=np.asarray(poses)))
+    dims = Dimensions.of([at])
+    core = PGOCore(
+        at.num_robots, dims, 1, reward="F", place_separators=False, **task.core_options()
+    )
+    core.load([at], [0])
+    observation = {key: value[0] for key, value in core.observation().items()}
+    t = core.tensors
+    return GateState(
+        graphs=GraphBatch(**observation, action_mask=core.action_mask()[0]),
+        edge_ids=t["edge_ids"][0],
+        edge_mask=t["edge_mask"][0],
+        outlier=t["outlier"][0, :, : dims.edges],
+        num_edges=problem.graph.num_edges,
+    )
+
+
+def holder_minimum(values: Tensor, state: GateState) -> np.ndarray:
+    """``(M,)``: per global edge, the smallest of ``values`` ``(n, E)`` over the robots that hold
+    it (1 for an edge no robot holds)."""
+    gate = np.ones(state.num_edges)
+    mask = state.edge_mask
+    np.minimum.at(gate, state.edge_ids[mask].numpy(), values[mask].detach().numpy())
+    return gate
+
+
+def state_gate(encoder: GraphEncoder, state: GateState) -> np.ndarray:
+    """``(M,)`` the layer-averaged noise-free gate of every global edge, the smallest over its
+    holders (1 − gate is the outlier score)."""
+    with torch.no_grad():
+        gates = encoder(state.graphs, deterministic=True).gates.mean(0)
+    return holder_minimum(gates, state)
+
+
+def reconciled_gate(
+    encoder: GraphEncoder, task: TaskConfig, problem: DistributedProblem, poses: np.ndarray
+) -> np.ndarray:
+    """:func:`state_gate` at the reconciled estimate ``poses`` ``(N, 3)``."""
+    return state_gate(encoder, reconciled_state(problem, poses, task))
+
+
+def candidate_auc(problem: DistributedProblem, gate: np.ndarray) -> float:
+    """ROC AUC of the outlier score 1 − ``gate`` ``(M,)`` against ``problem``'s injected
+    outliers, over the corruptible edges (the loop closures, popbench.outliers.candidate_mask);
+    NaN without an outlier."""
+    from popbench.metrics import roc_auc
+    from popbench.outliers import candidate_mask
+
+    among = candidate_mask(problem.graph)
+    return roc_auc(1.0 - gate[among], problem.outlier_mask[among])
+
+
+def f1_threshold(gates: list[np.ndarray], outliers: list[np.ndarray]) -> float:
+    """The flag threshold t (flag: gate ≤ t) with the largest F1 over the pooled edges of
+    ``gates`` and their labels ``outliers`` (lists of equal-shape arrays): the midpoint between
+    the gate values on either side of the best cut (0.5 without an outlier)."""
+    gate, outlier = np.concatenate(gates), np.concatenate(outliers).astype(bool)
+    if not outlier.any():
+        return GATE_THRESHOLD
+    order = np.argsort(gate, kind="mergesort")
+    gate, outlier = gate[order], outlier[order]
+    last = np.r_[np.nonzero(np.diff(gate))[0], gate.size - 1]  # the last index of each value
+    hits = np.cumsum(outlier)[last]
+    f1 = 2.0 * hits / (last + 1 + outlier.sum())  # 2PR / (P + R) = 2·hits / (flagged + true)
+    best = int(np.argmax(f1))
+    above = gate[last[best] + 1] if last[best] + 1 < gate.size else 1.0
+    return float(0.5 * (gate[last[best]] + above))
