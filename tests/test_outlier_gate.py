@@ -21,7 +21,6 @@ from agents.checkpoint import (
 from agents.config import (
     TRAJECTORY_TASK,
     ExperimentConfig,
-    ModelConfig,
     OutlierGateConfig,
     TrainConfig,
 )
@@ -33,16 +32,9 @@ from popbench.graph import EdgeKind
 from popbench.outliers import with_outliers
 from popbench.reconcile import reconcile
 from popbench.synthetic import make_problem
+from tests.conftest import tiny_model
 
-TINY = ModelConfig(
-    hidden=8,
-    layers=2,
-    edge_hidden=3,
-    gate_hidden=8,
-    memory_hidden=8,
-    edge_head_hidden=12,
-    correction_hidden=(16,),
-)
+TINY = tiny_model()
 TINY_FIT = OutlierGateConfig(problems=2, validation=2, epochs=2)
 
 
