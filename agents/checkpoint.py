@@ -66,7 +66,13 @@ def load_actor(
     path: str | Path, device: str | torch.device = "cpu"
 ) -> tuple[HybridActor, TrainConfig]:
     """The trained shared actor (eval mode) and its config, for any team size."""
-    state = read_checkpoint(path, device)
+    return actor_of(read_checkpoint(path, device), device)
+
+
+def actor_of(
+    state: dict[str, Any], device: str | torch.device = "cpu"
+) -> tuple[HybridActor, TrainConfig]:
+    """:func:`load_actor` of an already read checkpoint dict."""
     config = TrainConfig.from_dict(state["config"])
     dims = state["dims"]
     actor = HybridActor(dims["node"], dims["edge"], config.model).to(device)
@@ -111,7 +117,7 @@ def load_outlier_gate(path: str | Path, device: str | torch.device = "cpu") -> O
     state = read_checkpoint(path, device)
     if "outlier_gate" not in state:
         return None
-    actor, _ = load_actor(path, device)
+    actor, _ = actor_of(state, device)
     encoder = copy.deepcopy(actor.encoder)
     encoder.load_state_dict(state["outlier_gate"]["encoder"])
     return OutlierGate(encoder.eval(), float(state["outlier_gate"]["threshold"]))

@@ -56,7 +56,7 @@ from agents.checkpoint import load_actor, load_outlier_gate
 from agents.config import PAPER_TASK, TaskConfig
 from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
-from agents.outlier_gate import GATE_THRESHOLD, OutlierGate, reconciled_gate
+from agents.outlier_gate import GATE_THRESHOLD, OutlierGate, holder_minimum, reconciled_gate
 from popbench import objective
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result, method_record
@@ -176,8 +176,7 @@ def run_episode(
         if seconds is not None and time.perf_counter() - start > seconds:
             break
 
-    gate = np.ones(problem.graph.num_edges)
-    np.minimum.at(gate, edge_ids[edge_mask].numpy(), policy.gate_means()[edge_mask].numpy())
+    gate = holder_minimum(policy.gate_means(), edge_ids, edge_mask, problem.graph.num_edges)
     return Episode(core.local_poses(0), gate, np.array(history), np.array(step_s), setup_s)
 
 

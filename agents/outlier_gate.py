@@ -75,12 +75,14 @@ def reconciled_state(problem: DistributedProblem, poses: np.ndarray, task: TaskC
     )
 
 
-def holder_minimum(values: Tensor, state: GateState) -> np.ndarray:
+def holder_minimum(
+    values: Tensor, edge_ids: Tensor, edge_mask: Tensor, num_edges: int
+) -> np.ndarray:
     """``(M,)``: per global edge, the smallest of ``values`` ``(n, E)`` over the robots that hold
-    it (1 for an edge no robot holds)."""
-    gate = np.ones(state.num_edges)
-    mask = state.edge_mask
-    np.minimum.at(gate, state.edge_ids[mask].numpy(), values[mask].detach().numpy())
+    it (``edge_ids`` ``(n, E)`` their global ids, real where ``edge_mask``; 1 for an edge no
+    robot holds)."""
+    gate = np.ones(num_edges)
+    np.minimum.at(gate, edge_ids[edge_mask].numpy(), values[edge_mask].detach().numpy())
     return gate
 
 
@@ -89,7 +91,7 @@ def state_gate(encoder: GraphEncoder, state: GateState) -> np.ndarray:
     holders (1 − gate is the outlier score)."""
     with torch.no_grad():
         gates = encoder(state.graphs, deterministic=True).gates.mean(0)
-    return holder_minimum(gates, state)
+    return holder_minimum(gates, state.edge_ids, state.edge_mask, state.num_edges)
 
 
 def reconciled_gate(

@@ -134,24 +134,29 @@ def train_gate_command(
     out: Annotated[
         Path | None, typer.Option(help="Where to write it (default: over CHECKPOINT).")
     ] = None,
-    problems: Annotated[int, typer.Option(min=1, help="Training problems.")] = 160,
+    problems: Annotated[int | None, typer.Option(min=1, help="Training problems.")] = None,
     validation: Annotated[
-        int, typer.Option(min=1, help="Validation problems (choose the epoch).")
-    ] = 16,
-    epochs: Annotated[int, typer.Option(min=1, help="Passes over the training states.")] = 10,
-    seed: Annotated[int, typer.Option(help="Seed of the problem streams and shuffling.")] = 0,
+        int | None, typer.Option(min=1, help="Validation problems, to choose the epoch.")
+    ] = None,
+    epochs: Annotated[
+        int | None, typer.Option(min=1, help="Passes over the training states.")
+    ] = None,
+    seed: Annotated[
+        int | None, typer.Option(help="Seed of the problem streams and shuffling.")
+    ] = None,
     threads: CommandThreads = 1,
 ) -> None:
-    """Fit the outlier gate of a trained actor: its gated encoder re-run after the consensus."""
+    """Fit the outlier gate of a trained actor: its gated encoder re-run after the consensus.
+
+    Unset options take agents.config.OutlierGateConfig's values."""
     import dataclasses
 
     from popbench.methods import load_object
     from popbench.threads import limited_threads
 
+    given = {"problems": problems, "validation": validation, "epochs": epochs, "seed": seed}
     defaults = load_object(TRAINING["gate_config"])()  # agents.config.OutlierGateConfig
-    config = dataclasses.replace(
-        defaults, problems=problems, validation=validation, epochs=epochs, seed=seed
-    )
+    config = dataclasses.replace(defaults, **{k: v for k, v in given.items() if v is not None})
     fit = load_object(TRAINING["fit_gate"])  # agents.gate_training.fit_checkpoint
     with limited_threads(threads):
         typer.echo(fit(checkpoint, out or checkpoint, config))
