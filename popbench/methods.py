@@ -99,6 +99,10 @@ class MethodRecord:
         checkpoint: a file its results depend on besides the code (the learned methods' actor
             weights), ``"package:relative/path"`` (found without importing the package) or a
             path; its sha256 keys the cached cells (:mod:`popbench.harness.cache`). None: none.
+            For a learned method: the actor of training seed 0, the one a plain run uses.
+        seed_checkpoints: the actors of training seeds 1, 2, … of the same training recipe
+            (same form as ``checkpoint``), so that a table can report a learned method over
+            its training seeds (``popbench run table1 --training-seeds``).
         has_inlier_mask: its ``Result.inlier_mask`` flags outliers (Table II's methods).
         outlier_options: the options Table II (``popbench run outliers``) runs it with, as
             ``(name, value)`` pairs; the table names them beside the method (mm-pgo: the kernel
@@ -123,6 +127,7 @@ class MethodRecord:
     solve: str
     label: str
     checkpoint: str | None = None
+    seed_checkpoints: tuple[str, ...] = ()
     has_inlier_mask: bool = False
     outlier_options: tuple[tuple[str, Any], ...] = ()
     learned: bool = False
@@ -131,14 +136,25 @@ class MethodRecord:
     refines: str | None = None
     options: str | None = None
 
-    def checkpoint_path(self) -> Path | None:
-        """:attr:`checkpoint` as a path (a ``"package:relative/path"`` resolved against the
-        package's folder without importing it), or None (no checkpoint, or no such package)."""
+    @property
+    def training_seeds(self) -> range:
+        """The training seeds whose actors the record names (none without a checkpoint)."""
+        return range(0 if self.checkpoint is None else 1 + len(self.seed_checkpoints))
+
+    def checkpoint_path(self, training_seed: int = 0) -> Path | None:
+        """The checkpoint of ``training_seed`` (:attr:`checkpoint` for 0, else the
+        :attr:`seed_checkpoints` entry) as a path (a ``"package:relative/path"`` resolved
+        against the package's folder without importing it), or None (no checkpoint, or no such
+        package); ValueRangeError for a seed the record names no actor of."""
         if self.checkpoint is None:
             return None
-        package, separator, relative = self.checkpoint.partition(":")
+        if training_seed not in self.training_seeds:
+            allowed = ", ".join(map(str, self.training_seeds))
+            raise ValueRangeError(f"training seed of {self.name}", training_seed, allowed)
+        named = (self.checkpoint, *self.seed_checkpoints)[training_seed]
+        package, separator, relative = named.partition(":")
         if not separator:
-            return Path(self.checkpoint).expanduser()
+            return Path(named).expanduser()
         folder = package_folder(package)
         return None if folder is None else folder / relative
 
@@ -156,8 +172,12 @@ def package_folder(name: str) -> Path | None:
 
 
 # The n = 7 V2 actor (any n): the imitation phase of the cpu-imitation-robust run, seed 0 (its
-# GA-SAC fine-tuning measured worse on held-out problems: agents/checkpoints/README.md).
+# GA-SAC fine-tuning measured worse on held-out problems: agents/checkpoints/README.md), and the
+# same phase of training seeds 1 and 2.
 ACTOR_CHECKPOINT = "agents:checkpoints/imitation-V2-n7-robust.pt"
+ACTOR_SEED_CHECKPOINTS = tuple(
+    f"agents:checkpoints/imitation-V2-n7-robust-s{seed}.pt" for seed in (1, 2)
+)
 
 METHODS: dict[str, MethodRecord] = {
     record.name: record
@@ -184,6 +204,7 @@ METHODS: dict[str, MethodRecord] = {
             "agents.methods:solve_prop_v1",
             "Prop-V1",
             checkpoint=ACTOR_CHECKPOINT,
+            seed_checkpoints=ACTOR_SEED_CHECKPOINTS,
             has_inlier_mask=True,
             learned=True,
             episodic=True,
@@ -193,6 +214,7 @@ METHODS: dict[str, MethodRecord] = {
             "agents.methods:solve_prop_v2",
             "Prop-V2",
             checkpoint=ACTOR_CHECKPOINT,
+            seed_checkpoints=ACTOR_SEED_CHECKPOINTS,
             has_inlier_mask=True,
             learned=True,
             episodic=True,

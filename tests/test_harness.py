@@ -241,11 +241,31 @@ def test_learned_cells_are_keyed_by_the_actor_checkpoint(tmp_path, monkeypatch, 
 
     checkpoint = tmp_path / "actor.pt"
     checkpoint.write_bytes(b"weights one")
-    monkeypatch.setattr(cache, "checkpoint_path", lambda method: checkpoint)
+    monkeypatch.setattr(cache, "checkpoint_path", lambda method, training_seed=0: checkpoint)
     before = cell_key(_specs("table1", "mit", method)[0])
     checkpoint.write_bytes(b"weights two, retrained")
     assert cell_key(_specs("table1", "mit", method)[0]) != before
     assert "checkpoint_sha256" not in _specs("table1", "mit", "mm-pgo")[0]
+
+
+def test_a_refiners_training_seed_cell_starts_from_the_same_seeds_refined_cell():
+    from popbench.harness import table1
+    from popbench.harness.cache import checkpoint_sha256
+    from popbench.harness.refining import refined_spec
+
+    config = table1.Table1Config(
+        datasets=("mit",), robots=(7,), methods=("prop-v1", "prop-v2"), training_seeds=(0, 1, 2)
+    )
+    specs = table1.cell_specs(config)
+    assert [(s["method"], s["training_seed"]) for s in specs] == [
+        (method, seed) for method in ("prop-v1", "prop-v2") for seed in (0, 1, 2)
+    ]
+    assert len({s["checkpoint_sha256"] for s in specs}) == 3  # one actor per training seed
+    for prop_v1, prop_v2 in zip(specs[:3], specs[3:], strict=True):
+        assert refined_spec(prop_v2) == prop_v1
+        assert prop_v1["checkpoint_sha256"] == checkpoint_sha256(
+            "prop-v1", prop_v1["training_seed"]
+        )
 
 
 @pytest.mark.slow  # imports torch

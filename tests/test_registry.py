@@ -3,6 +3,8 @@ registry only, runs in ``popbench solve`` and gets its row (and label) in a quic
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -11,7 +13,9 @@ from conftest import ring_g2o
 from popbench import methods, objective
 from popbench.cli import main
 from popbench.harness.cache import cell_key, provenance
+from popbench.harness.reports import number
 from popbench.harness.table1 import Table1Config
+from popbench.metrics import mean_ci
 
 
 def solve_toy(problem, budget, seed: int = 0, step: float = 0.5, **_) -> methods.Result:
@@ -57,6 +61,67 @@ def test_a_registered_toy_method_gets_its_row_in_a_quick_table(toy, tmp_path, ca
     before = cell_key(provenance(str(graph), "toy"))
     toy.write_bytes(b"toy weights, retrained")
     assert cell_key(provenance(str(graph), "toy")) != before
+
+
+def solve_toy_learned(problem, budget, checkpoint: str | None = None, **_) -> methods.Result:
+    """A toy learned method: the toy's move with the step its "actor" file holds (seed 0's,
+    the record's own, unless the harness names another training seed's)."""
+    actor = checkpoint or methods.method_record("toy-learned").checkpoint_path()
+    return solve_toy(problem, budget, step=float(Path(actor).read_text()))
+
+
+@pytest.fixture
+def toy_learned(monkeypatch: pytest.MonkeyPatch, tmp_path) -> list[Path]:
+    actors = [tmp_path / f"step-s{seed}.txt" for seed in range(3)]
+    for actor, step in zip(actors, ("0.5", "0.25", "0.75"), strict=True):
+        actor.write_text(step)
+    record = methods.MethodRecord(
+        "toy-learned",
+        "test_registry:solve_toy_learned",
+        "ToyL",
+        checkpoint=str(actors[0]),
+        seed_checkpoints=tuple(map(str, actors[1:])),
+        learned=True,
+    )
+    monkeypatch.setitem(methods.METHODS, "toy-learned", record)
+    return actors
+
+
+def test_a_learned_method_runs_once_per_training_seed_in_table_i(toy_learned, tmp_path) -> None:
+    graph = ring_g2o(tmp_path / "ring.g2o", n=12)
+    out = tmp_path / "table"
+    args = ["run", "table1", "--datasets", str(graph), "--robots", "2", "--jobs", "1"]
+    args += ["--methods", "toy-learned,mm-pgo", "--iterations", "5", "--init", "chordal"]
+    args += ["--out", str(out)]
+    assert main([*args, "--training-seeds", "0,1,2"]) == 0
+    frame = pd.read_csv(out / "table1.csv")
+    assert list(frame["method"]) == ["toy-learned"] * 3 + ["mm-pgo"]
+    assert list(frame["training_seed"].iloc[:3]) == [0, 1, 2]
+    assert np.isnan(frame["training_seed"].iloc[3])  # not a learned method: one cell
+    learned = frame.iloc[:3]["F"].to_numpy()
+    assert len(set(learned)) == 3  # each seed's own actor ran (different steps)
+    mean, half = mean_ci(learned)
+    table = (out / "table1.md").read_text()
+    assert f"{number(mean)} ± {number(half)}" in table
+    mm_pgo = frame.iloc[3]["F"]
+    assert f"{number(mm_pgo)} ±" not in table and f"{number(mm_pgo)}" in table
+    # each seed's cell is keyed by its own actor
+    toy_learned[2].write_text("0.8")
+    assert main([*args, "--training-seeds", "0,1,2"]) == 0
+    again = pd.read_csv(out / "table1.csv")
+    assert list(again["F"].iloc[:2]) == list(frame["F"].iloc[:2])
+    assert again["F"].iloc[2] != frame["F"].iloc[2]
+
+
+def test_a_training_seed_without_an_actor_is_refused(toy_learned, tmp_path, capsys) -> None:
+    graph = ring_g2o(tmp_path / "ring.g2o", n=12)
+    args = ["run", "table1", "--datasets", str(graph), "--robots", "2", "--jobs", "1"]
+    args += ["--methods", "toy-learned", "--out", str(tmp_path / "t")]
+    assert main([*args, "--training-seeds", "0,3"]) != 0
+    assert "training seed of toy-learned" in capsys.readouterr().err
+    toy_learned[1].unlink()
+    assert main([*args, "--training-seeds", "1"]) != 0
+    assert "training seed 1" in capsys.readouterr().err
 
 
 def test_a_registered_toy_method_solves_from_the_command_line(toy, tmp_path, capsys) -> None:

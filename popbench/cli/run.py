@@ -36,11 +36,17 @@ def experiment(name: str, *examples: str) -> Callable[[Callable[..., None]], Cal
     return register
 
 
+def wrote(count: int, what: str, out: Path, files: str) -> None:
+    """Say what a command wrote: ``COUNT WHAT -> OUT/FILES``."""
+    typer.echo(f"{count} {what} -> {out}/{files}")
+
+
 @experiment(
     "table1",
     "popbench run table1 --quick                      # mit, n = 3, 100 rounds",
     "popbench run table1 --jobs 1                     # one cell at a time",
     "popbench run table1 --executor ray --address HEAD:6379",
+    "popbench run table1 --robots 7 --methods prop-v1,local-lm --training-seeds 0,1,2",
     "popbench run table1 --datasets intel,my.g2o --robots 3,7 --methods mm-pgo --out results/mine",
 )
 def table1_command(
@@ -66,6 +72,12 @@ def table1_command(
         show_default=False,
     ),
     seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
+    training_seeds: str = typer.Option(
+        "0",
+        help="Training seeds of the learned methods' actors (0,1,2: the committed ones, "
+        "agents/checkpoints/README.md): a learned cell runs once per seed and the table "
+        "shows mean ± 95 % CI.",
+    ),
     init: options.Init = "odometry",
     partition: str = typer.Option("metis", help="metis | contiguous."),
     out: Path = typer.Option(
@@ -92,6 +104,7 @@ def table1_command(
 
     settings: dict = {
         "seeds": options.integers(seeds, "seed", 0),
+        "training_seeds": options.integers(training_seeds, "training seed", 0),
         "init": options.start(init),
         "partition": options.names(partition, options.PARTITIONS, "partition")[0],
     }
@@ -106,11 +119,8 @@ def table1_command(
     if out is not None:
         settings["out"] = out
     config = Table1Config.quick(**settings) if quick else Table1Config(**settings)
-    frame = run_table1(config, run)
-    typer.echo(
-        f"{len(frame)} cells -> {config.out}/table1.csv, table1.md, table1.tex, "
-        "table1.png, table1.pdf, profile-*.png/.pdf"
-    )
+    files = "table1.csv, table1.md, table1.tex, table1.png, table1.pdf, profile-*.png/.pdf"
+    wrote(len(run_table1(config, run)), "cells", config.out, files)
 
 
 @experiment(
@@ -165,9 +175,8 @@ def outliers_command(
         candidates=options.names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
         out=out,
     )
-    frame = run_outliers(config, run)
-    written = "outliers.csv, outliers_summary.csv, outliers.md, outliers.tex"
-    typer.echo(f"{len(frame)} cells -> {config.out}/{written}")
+    files = "outliers.csv, outliers_summary.csv, outliers.md, outliers.tex"
+    wrote(len(run_outliers(config, run)), "cells", config.out, files)
 
 
 @experiment(
@@ -200,8 +209,8 @@ def scalability_command(
         init=options.start(init),
         out=out,
     )
-    frame = run_scalability(config, run)
-    typer.echo(f"{len(frame)} cells -> {config.out}/scalability.csv, scalability.png/.pdf")
+    files = "scalability.csv, scalability.png/.pdf"
+    wrote(len(run_scalability(config, run)), "cells", config.out, files)
 
 
 HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
@@ -295,7 +304,5 @@ def heldout_command(
     if json_output:
         typer.echo(summary_json(table))
     else:
-        typer.echo(
-            f"{len(table)} rows -> {config.out}/heldout.csv, summary.csv, heldout.md, "
-            "heldout.png, heldout.pdf"
-        )
+        files = "heldout.csv, summary.csv, heldout.md, heldout.png, heldout.pdf"
+        wrote(len(table), "rows", config.out, files)

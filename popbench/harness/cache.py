@@ -76,40 +76,55 @@ def dataset_sha256(dataset: str) -> str:
     return datasets.file_sha256(Path(dataset).expanduser())
 
 
-def checkpoint_path(method: str) -> Path | None:
-    """The checkpoint file the registered ``method`` depends on (its record's
-    :attr:`~popbench.methods.MethodRecord.checkpoint`), or None."""
-    return method_record(method).checkpoint_path()
+def checkpoint_path(method: str, training_seed: int = 0) -> Path | None:
+    """The checkpoint file the registered ``method`` depends on for ``training_seed`` (its
+    record's :meth:`~popbench.methods.MethodRecord.checkpoint_path`), or None."""
+    return method_record(method).checkpoint_path(training_seed)
 
 
-def checkpoint_sha256(method: str) -> str | None:
+def checkpoint_sha256(method: str, training_seed: int = 0) -> str | None:
     """sha256 of :func:`checkpoint_path`, or None when there is no such file."""
     from popbench.datasets import file_sha256
 
-    path = checkpoint_path(method)
+    path = checkpoint_path(method, training_seed)
     return file_sha256(path) if path is not None and path.is_file() else None
 
 
-def provenance(dataset: str, method: str | None = None) -> dict[str, Any]:
+def provenance(dataset: str, method: str | None = None, training_seed: int = 0) -> dict[str, Any]:
     """What a cell on ``dataset`` with ``method`` was computed from, for its specification
-    (with the checkpoint's sha256 for a method whose record names one)."""
+    (with the sha256 of the checkpoint of ``training_seed`` for a method whose record names
+    one)."""
     inputs: dict[str, Any] = {"code": code_fingerprint(), "dataset_sha256": dataset_sha256(dataset)}
     if method in METHODS and METHODS[method].checkpoint is not None:
-        inputs["checkpoint_sha256"] = checkpoint_sha256(method)
+        inputs["checkpoint_sha256"] = checkpoint_sha256(method, training_seed)
     return inputs
 
 
 def grid_specs(
-    experiment: str, axes: Mapping[str, Sequence[Any]], shared: Mapping[str, Any]
+    experiment: str,
+    axes: Mapping[str, Sequence[Any]],
+    shared: Mapping[str, Any],
+    training_seeds: Sequence[int] = (0,),
 ) -> list[dict[str, Any]]:
     """One cell specification per point of the product of ``axes`` (in their order, the last
     varying fastest; they include ``dataset`` and ``method``): the point, the options every
-    cell shares (``shared``) and what the cell is computed from (:func:`provenance`)."""
+    cell shares (``shared``) and what the cell is computed from (:func:`provenance`). A method
+    whose record names a checkpoint gets one cell per ``training_seeds`` entry (its key
+    ``training_seed``), each keyed by that seed's checkpoint; the others one cell."""
     specs = []
     for values in itertools.product(*axes.values()):
         point = dict(zip(axes, values, strict=True))
-        inputs = provenance(point["dataset"], point["method"])
-        specs.append({**inputs, "experiment": experiment, **point, **shared})
+        method = point["method"]
+        if method not in METHODS or METHODS[method].checkpoint is None:
+            inputs = provenance(point["dataset"], method)
+            specs.append({**inputs, "experiment": experiment, **point, **shared})
+            continue
+        for training_seed in training_seeds:
+            inputs = provenance(point["dataset"], method, training_seed)
+            specs.append(
+                {**inputs, "experiment": experiment, **point, "training_seed": training_seed}
+                | dict(shared)
+            )
     return specs
 
 

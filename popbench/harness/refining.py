@@ -70,7 +70,7 @@ def refined_spec(spec: Spec) -> Spec | None:
     if method not in METHODS or METHODS[method].refines is None:
         return None
     refined = METHODS[method].refines
-    inputs = provenance(spec["dataset"], refined)
+    inputs = provenance(spec["dataset"], refined, spec.get("training_seed", 0))
     spec_inputs = {key: value for key, value in spec.items() if key != "checkpoint_sha256"}
     return {**spec_inputs, **inputs, "method": refined}
 

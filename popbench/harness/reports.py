@@ -1,7 +1,8 @@
 """Paper-ready tables (markdown, LaTeX) and figures from the harness's long-format frames.
 
 Table cells read ``ours (paper)``; the best of our methods per dataset and team size is bold.
-Values are means over seeds.
+Values are means over seeds (and over a learned method's training seeds); where a cell has
+several, F and the gap read ``mean ± half-width`` of the 95 % Student-t interval.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ _TABLE1_METRICS = (
 )
 
 
+_SPREAD_COLUMNS = ("F", "gap")  # shown as mean ± half-width where a cell has several values
+
+
 def number(value: float) -> str:
     """Four significant digits; ``–`` for a missing value."""
     if value is None or (isinstance(value, float) and math.isnan(value)):
@@ -42,7 +46,9 @@ def _ordered(values: pd.Series, order: tuple[str, ...] | list) -> list:
 
 def _table1_grid(frame: pd.DataFrame, bold: tuple[str, str]) -> list[list[str]]:
     """Rows of cell strings: header rows, then (dataset, metric) rows."""
-    means = frame.groupby(["dataset", "robots", "method"], sort=False).mean(numeric_only=True)
+    groups = frame.groupby(["dataset", "robots", "method"], sort=False)
+    means = groups.mean(numeric_only=True)
+    spreads = {column: groups[column].agg(lambda v: mean_ci(v)[1]) for column in _SPREAD_COLUMNS}
     datasets = _ordered(frame["dataset"], ())
     robots = sorted(frame["robots"].unique())
     methods = _ordered(frame["method"], list(METHODS))
@@ -63,6 +69,9 @@ def _table1_grid(frame: pd.DataFrame, bold: tuple[str, str]) -> list[list[str]]:
                     text = number(values[m])
                     if best is not None and values[m] == best and len(finite) > 1:
                         text = bold[0] + text + bold[1]
+                    spread = spreads[column].get((dataset, n, m)) if column in spreads else None
+                    if spread is not None and not math.isnan(spread):
+                        text += f" ± {number(spread)}"
                     paper = paper_table1_cell(dataset, int(n), m)
                     if paper_index is not None and paper is not None:
                         text += f" ({number(paper[paper_index])})"
@@ -83,7 +92,9 @@ def table1_markdown(frame: pd.DataFrame) -> str:
         "t(gap≤g) = the parallel time of the first round whose relative gap is at most g (of F "
         "against F*, or of F_chordal against F_chordal* for the methods whose history records "
         "F_chordal: cc-pgo, ml-pgo, mm-pgo), – where never reached. Bold: best of our methods "
-        "per dataset and team size.\n"
+        "per dataset and team size (by the mean). A cell with several seeds (or a learned "
+        "method's training seeds) reads mean ± the half-width of its 95 % Student-t interval "
+        "in F and the gap.\n"
     )
     return "\n".join(lines) + "\n" + note
 

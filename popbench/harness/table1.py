@@ -19,6 +19,7 @@ from typing import Any
 import pandas as pd
 
 from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
 from popbench.harness import problems, profiles, reports
 from popbench.harness.cache import grid_specs, provenance
 from popbench.harness.executors import Row, Run, Spec
@@ -26,7 +27,7 @@ from popbench.harness.paper import paper_table1_cell
 from popbench.harness.profiles import GAP_COLUMNS
 from popbench.harness.refining import refined_spec, solve_cell
 from popbench.harness.runner import run_experiment
-from popbench.methods import Budget, Result, distributed_methods
+from popbench.methods import METHODS, Budget, Result, distributed_methods
 
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
 ROBOTS = (3, 7, 35)
@@ -48,6 +49,8 @@ class Table1Config:
     methods: tuple[str, ...] = dataclasses.field(default_factory=distributed_methods)
     iterations: int = 1000
     seeds: tuple[int, ...] = (0,)
+    # the learned methods' actors: one cell per training seed (MethodRecord.seed_checkpoints)
+    training_seeds: tuple[int, ...] = (0,)
     init: str = "odometry"
     partition: str = "metis"
     out: Path = Path("results/table1")
@@ -69,7 +72,18 @@ def cell_specs(config: Table1Config) -> list[Spec]:
         "seed": config.seeds,
     }
     shared = {"iterations": config.iterations, "init": config.init, "partition": config.partition}
-    return grid_specs("table1", axes, shared)
+    return grid_specs("table1", axes, shared, config.training_seeds)
+
+
+def check_training_seeds(config: Table1Config) -> None:
+    """ValueRangeError unless every learned method of ``config`` names an actor for each of
+    its ``training_seeds`` (:attr:`popbench.methods.MethodRecord.seed_checkpoints`)."""
+    for method in config.methods:
+        for training_seed in config.training_seeds:
+            path = METHODS[method].checkpoint_path(training_seed)
+            if path is not None and not path.is_file():
+                what = f"actor of {method} for training seed {training_seed}"
+                raise ValueRangeError(what, str(path), "an existing checkpoint file")
 
 
 def optimum_spec(dataset: str) -> Spec:
@@ -98,7 +112,11 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
         spec["dataset"], spec["robots"], spec["init"], spec["partition"], spec["seed"]
     )
     budget = Budget(iterations=spec["iterations"])
-    result = solve_cell(spec, problem, budget, {"seed": spec["seed"]}, cell_row)
+    options: dict[str, Any] = {"seed": spec["seed"]}
+    if spec.get("training_seed", 0) != 0:  # seed 0's actor is the one the method loads itself
+        record = METHODS[spec["method"]]
+        options["checkpoint"] = str(record.checkpoint_path(spec["training_seed"]))
+    result = solve_cell(spec, problem, budget, options, cell_row)
     return cell_row(spec, problem, result)
 
 
@@ -113,6 +131,7 @@ def cell_row(spec: Spec, problem: DistributedProblem, result: Result) -> dict[st
         "method": spec["method"],
         "init": spec["init"],
         "seed": spec["seed"],
+        "training_seed": spec.get("training_seed"),  # None: not a learned method
         "F": result.F,
         "F_chordal": result.F_chordal,
         "chi2": result.chi2,
@@ -140,6 +159,7 @@ def run_table1(config: Table1Config, run: Run | None = None) -> pd.DataFrame:
 
     def cells() -> list[Spec]:
         problems.check_inputs(config.datasets, config.robots)
+        check_training_seeds(config)
         return [*(optimum_spec(d) for d in config.datasets), *cell_specs(config)]
 
     write = functools.partial(write_table1, config)
@@ -182,6 +202,7 @@ def write_table1(config: Table1Config, computed: list[Row]) -> pd.DataFrame:
         "iterations",
         "messages",
         "seed",
+        "training_seed",
         "paper_F",
         "paper_time_s",
         *GAP_COLUMNS,
