@@ -121,10 +121,8 @@ def grid_specs(
             continue
         for training_seed in training_seeds:
             inputs = provenance(point["dataset"], method, training_seed)
-            specs.append(
-                {**inputs, "experiment": experiment, **point, "training_seed": training_seed}
-                | dict(shared)
-            )
+            point_of_seed = {**point, "training_seed": training_seed}
+            specs.append({**inputs, "experiment": experiment, **point_of_seed, **shared})
     return specs
 
 
