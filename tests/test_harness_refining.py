@@ -81,6 +81,29 @@ def test_a_dependent_cell_waits_for_its_dependency(tmp_path, execution):
     assert by_name["b"]["start"] >= by_name["a"]["end"]
 
 
+def stamped_method(spec):
+    """A module-level cell of a method spec: prop-v1's is the slow one."""
+    started = time.time()
+    time.sleep(0.3 if spec["method"] == "prop-v1" else 0.05)
+    return {"method": spec["method"], "start": started, "end": time.time()}
+
+
+def test_every_experiment_orders_a_refiner_after_its_refined_cell(tmp_path):
+    # scalability's cells, prop-v2 listed first: by default the runner waits for prop-v1's cell
+    # (before, scalability ran them at once and prop-v2's worker computed prop-v1 again)
+    from conftest import ring_g2o
+
+    from popbench.harness.runner import run_experiment
+    from popbench.harness.scalability import ScalabilityConfig, cell_specs
+
+    graph = ring_g2o(tmp_path / "ring.g2o", n=12)
+    config = ScalabilityConfig(dataset=str(graph), robots=(2,), methods=("prop-v2", "prop-v1"))
+    run = Run(execution=Execution(jobs=2), progress=False)
+    rows = run_experiment(tmp_path / "out", lambda: cell_specs(config), stamped_method, list, run)
+    by_method = {row["method"]: row for row in rows}
+    assert by_method["prop-v2"]["start"] >= by_method["prop-v1"]["end"]
+
+
 def test_fresh_discards_a_cached_dependency_outside_the_run(tmp_path):
     cache = CellCache(tmp_path)
     cache.put({"name": "a"}, {"name": "a"})

@@ -30,6 +30,7 @@ from popbench.harness.executors import (
     make_executor,
 )
 from popbench.harness.manifest import write_manifest
+from popbench.harness.refining import refined_spec
 
 RUNNING_SHOWN = 3  # running cells named in the progress bar; more are counted
 
@@ -65,7 +66,7 @@ def run_cells(
     console: Console | None = None,
     progress: bool = True,
     fresh: bool = False,
-    depends: Callable[[Spec], Spec | None] | None = None,
+    depends: Callable[[Spec], Spec | None] | None = refined_spec,
 ) -> list[Row]:
     """Rows of all ``specs`` in order: cached rows are reused, the others computed by the
     ``execution``'s executor (default: serially in this process) and cached as each finishes
@@ -186,11 +187,13 @@ def run_experiment(
     compute: Callable[[Spec], Row],
     write: Callable[[list[Row]], Table],
     run: Run | None = None,
-    depends: Callable[[Spec], Spec | None] | None = None,
+    depends: Callable[[Spec], Spec | None] | None = refined_spec,
 ) -> Table:
     """Run an experiment into the folder ``out`` and return its table: ``cells()`` checks the
     inputs and lists the cells, which are computed or reused as ``run`` says (:func:`run_cells`,
-    cached under ``out/cells``; ``depends`` as there); ``write(rows)`` writes the outputs into
+    cached under ``out/cells``; ``depends`` as there, by default a refining method's cell waits
+    for the refined method's, :func:`popbench.harness.refining.refined_spec`, so that no two
+    workers compute it); ``write(rows)`` writes the outputs into
     ``out`` (created first) and returns the table; ``manifest.json`` records the wall time of
     all of it and how the cells ran (:func:`execution_summary`)."""
     run = run or Run()

@@ -25,7 +25,7 @@ from popbench.harness.cache import grid_specs, provenance
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table1_cell
 from popbench.harness.profiles import GAP_COLUMNS
-from popbench.harness.refining import refined_spec, solve_cell
+from popbench.harness.refining import solve_cell
 from popbench.harness.runner import run_experiment
 from popbench.methods import METHODS, Budget, Result, distributed_methods
 
@@ -163,7 +163,7 @@ def run_table1(config: Table1Config, run: Run | None = None) -> pd.DataFrame:
         return [*(optimum_spec(d) for d in config.datasets), *cell_specs(config)]
 
     write = functools.partial(write_table1, config)
-    return run_experiment(config.out, cells, compute, write, run, depends=refined_spec)
+    return run_experiment(config.out, cells, compute, write, run)
 
 
 def write_table1(config: Table1Config, computed: list[Row]) -> pd.DataFrame:
