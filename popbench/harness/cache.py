@@ -115,14 +115,11 @@ def grid_specs(
     for values in itertools.product(*axes.values()):
         point = dict(zip(axes, values, strict=True))
         method = point["method"]
-        if method not in METHODS or METHODS[method].checkpoint is None:
-            inputs = provenance(point["dataset"], method)
-            specs.append({**inputs, "experiment": experiment, **point, **shared})
-            continue
-        for training_seed in training_seeds:
-            inputs = provenance(point["dataset"], method, training_seed)
-            point_of_seed = {**point, "training_seed": training_seed}
-            specs.append({**inputs, "experiment": experiment, **point_of_seed, **shared})
+        per_seed = method in METHODS and METHODS[method].checkpoint is not None
+        for training_seed in training_seeds if per_seed else (None,):
+            seeded = point if training_seed is None else {**point, "training_seed": training_seed}
+            inputs = provenance(point["dataset"], method, training_seed or 0)
+            specs.append({**inputs, "experiment": experiment, **seeded, **shared})
     return specs
 
 

@@ -66,7 +66,7 @@ def run_cells(
     console: Console | None = None,
     progress: bool = True,
     fresh: bool = False,
-    depends: Callable[[Spec], Spec | None] | None = refined_spec,
+    depends: Callable[[Spec], Spec | None] | None = None,
 ) -> list[Row]:
     """Rows of all ``specs`` in order: cached rows are reused, the others computed by the
     ``execution``'s executor (default: serially in this process) and cached as each finishes
