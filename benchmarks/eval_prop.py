@@ -1,11 +1,15 @@
 """prop-v1's actor stage on every registered dataset (issue 14): F at the start, after the
-actor's episode (before the consensus) and after the consensus, beside local-lm and mm-pgo.
+actor's episode (before the consensus) and after the consensus, beside gn-sweep, local-lm and
+mm-pgo.
 
 F_actor is F of the assembled estimate (each pose from its owner) after the episode; F_copies
 is what the robots' episode lowers, F of their local copies with each inter-robot edge half
 from each robot (prop-v1's history); F_aligned is F_actor after the consensus's frame
-alignment. "lm F_local" is local-lm's assembled estimate: the robots' local optima before the
-consensus, the bound a local policy chases.
+alignment. "gn F_local" / "gn-sweep F" are the same two for the gn-sweep policy (one
+root-outward pass, each Δ one Gauss–Newton step, no learning: the held-out row of
+agents.heldout) through the same consensus: what the learned part of prop-v1's step must add to.
+"lm F_local" is local-lm's assembled estimate: the robots' local optima before the consensus,
+the bound a local policy chases.
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/eval_prop.py
     (options: --robots 7 --checkpoint PATH --datasets intel,mit,... --consensus admm)
@@ -22,11 +26,14 @@ from pathlib import Path
 
 import torch
 
+from agents.heldout import class_policy, episode
 from agents.methods import DEFAULT_CHECKPOINT, solve_prop_v1
+from envs.sweep import GaussNewtonSweep
+from popbench import objective
 from popbench.datasets import DATASETS
 from popbench.harness.problems import distributed_problem
 from popbench.methods import Budget, get_method
-from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS
+from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS, reconcile
 
 
 def main() -> None:
@@ -40,7 +47,8 @@ def main() -> None:
     print(f"checkpoint: {args.checkpoint}; n = {args.robots}; odometry start")
     print(
         f"{'dataset':>12} {'F_init':>11} {'F_copies':>11} {'F_actor':>11} {'F_aligned':>11} "
-        f"{'prop-v1 F':>11} {'v1 s':>6} {'lm F_local':>11} {'local-lm F':>11} {'mm-pgo F':>11} "
+        f"{'prop-v1 F':>11} {'v1 s':>6} {'gn F_local':>11} {'gn-sweep F':>11} "
+        f"{'lm F_local':>11} {'local-lm F':>11} {'mm-pgo F':>11} "
         f"{'actor lowers F':>15}"
     )
     for name in args.datasets.split(","):
@@ -48,6 +56,9 @@ def main() -> None:
         started = time.perf_counter()
         v1 = solve_prop_v1(problem, Budget(), checkpoint=args.checkpoint, consensus=args.consensus)
         v1_s = time.perf_counter() - started
+        swept = episode(problem, class_policy(GaussNewtonSweep))
+        sweep = reconcile(problem, swept, args.consensus)
+        sweep_f = objective.objective(problem.graph, sweep.poses)
         local = get_method("local-lm")(problem, Budget(), consensus=args.consensus)
         mm = get_method("mm-pgo")(problem, Budget(1000))
         f_init, f_actor = v1.extras["F_init"], v1.extras["F_actor"]
@@ -55,6 +66,7 @@ def main() -> None:
         print(
             f"{name:>12} {f_init:>11.5g} {f_copies:>11.5g} {f_actor:>11.5g} "
             f"{v1.extras['F_aligned']:>11.5g} {v1.F:>11.5g} {v1_s:>6.1f} "
+            f"{sweep.F_before:>11.5g} {sweep_f:>11.5g} "
             f"{local.extras['F_local']:>11.5g} {local.F:>11.5g} {mm.F:>11.5g} "
             f"{str(f_actor < f_init):>15}",
             flush=True,
