@@ -26,9 +26,8 @@ from pathlib import Path
 
 import torch
 
-from agents.heldout import class_policy, episode
+from agents.heldout import local_estimates
 from agents.methods import DEFAULT_CHECKPOINT, solve_prop_v1
-from envs.sweep import GaussNewtonSweep
 from popbench import objective
 from popbench.datasets import DATASETS
 from popbench.harness.problems import distributed_problem
@@ -56,8 +55,7 @@ def main() -> None:
         started = time.perf_counter()
         v1 = solve_prop_v1(problem, Budget(), checkpoint=args.checkpoint, consensus=args.consensus)
         v1_s = time.perf_counter() - started
-        swept = episode(problem, class_policy(GaussNewtonSweep))
-        sweep = reconcile(problem, swept, args.consensus)
+        sweep = reconcile(problem, local_estimates("gn-sweep", problem, {}), args.consensus)
         sweep_f = objective.objective(problem.graph, sweep.poses)
         local = get_method("local-lm")(problem, Budget(), consensus=args.consensus)
         mm = get_method("mm-pgo")(problem, Budget(1000))
