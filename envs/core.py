@@ -2,7 +2,8 @@
 
 One :class:`PGOCore` holds ``B`` independent problems of ``n`` robots (agents). It is the single
 implementation behind the TorchRL env (:mod:`envs.torchrl_env`, any ``B``) and the PettingZoo env
-(:mod:`envs.pettingzoo_env`, ``B = 1``).
+(:mod:`envs.pettingzoo_env`, ``B = 1``); what the actor observes of it is read by
+:mod:`envs.readout`.
 
 State layout: local copies
     Agent ``i`` holds its local graph (:class:`popbench.distributed.LocalGraph`: owned vertices,
@@ -74,10 +75,10 @@ from envs.geometry import (
     between,
     compose,
     inverse,
-    node_features,
     residuals,
 )
-from envs.observation import REWARDS, Dimensions, pack_problem
+from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
+from envs.readout import observation_changes, observe
 from envs.tree import pack_trees, place_separators
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
@@ -239,7 +240,7 @@ class PGOCore:
             pack = pack_problem(problem, self.dims, self.reward_kind, start)
             pack.update(pack_trees(problem, self.dims.vertices, self.dims.edges))
             if self.action_scale == "whitened":
-                _whiten_attributes(pack)
+                whiten_attributes(pack)
             packs.append(pack)
         fresh = {
             key: torch.as_tensor(np.stack([pack[key] for pack in packs])).to(self.device)
@@ -455,86 +456,16 @@ class PGOCore:
         costs.scatter_(1, incident, cost)
         return change
 
-    # -- observation -----------------------------------------------------------------------------
+    # -- observation (envs.readout) ---------------------------------------------------------------
 
     def observation(self) -> dict[str, torch.Tensor]:
-        """Per-agent padded observation, every entry with leading shape ``(B, n)``.
-
-        * ``node_features (V, 6)`` float32: pose in the frame of the agent's first owned pose
-          (x, y [m], sin θ, cos θ), ``log(1 + degree)``, owned flag (0 = separator copy);
-        * ``node_mask (V,)``; ``edge_index (2, E)`` int64 local (tail, head), 0 on padding;
-        * ``edge_attr (E, 11)`` (:func:`edge_attributes`); ``edge_mask (E,)``;
-        * ``processed (E,)``; ``residuals (E, 3)`` float32 current ``[r_t, r_θ]`` against the
-          measurements (0 on padding).
-        """
-        t = self.tensors
-        v, e = self.dims.vertices, self.dims.edges
-        poses = t["poses"][:, :, :v]
-        if self.observation_mode == "invariant":
-            parent = t["tree_parent"][:, :, :v]
-            frame = _gather_rows(poses.flatten(0, 1), parent.flatten(0, 1)).view(poses.shape)
-        else:
-            frame = poses[:, :, :1]
-        node_mask = t["node_mask"]
-        return {
-            "node_features": node_features(frame, poses, t["log_degree"], t["owned"], node_mask),
-            "node_mask": node_mask,
-            "edge_index": t["edge_index"],
-            "edge_attr": t["edge_attr"],
-            "edge_mask": t["edge_mask"],
-            "processed": t["processed"][..., :e].clone(),
-            "residuals": self._observed_residuals().to(torch.float32),
-        }
+        """Per-agent padded observation (:func:`envs.readout.observe`)."""
+        return observe(self)
 
     def observation_update(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """What the last :meth:`step` may have changed in :meth:`observation`, for an
-        incremental reader (:class:`agents.inference.IncrementalPolicy`): every entry whose
-        value can differ is included (some may be unchanged), every other entry is unchanged.
-
-        Returns:
-            vertices ``(S,)`` flat ids ``(b·n + agent)·V + local`` (ascending): the vertices
-            the step moved and those whose frame vertex it moved; their ``node_features``
-            ``(S, 6)`` float32; edges ``(R,)`` flat ids ``(b·n + agent)·E + slot``
-            (ascending): the edges whose residual it recomputed; their observed ``residuals``
-            ``(R, 3)`` float32 (as :meth:`observation` gives them).
-        """
-        if self.last_moved is None or self.last_refreshed is None:
-            raise RuntimeError("observation_update before the first step")
-        t = self.tensors
-        v, e = self.dims.vertices, self.dims.edges
-        g = self.batch * self.num_agents
-        moved = self.last_moved[:, :v]
-        if self.observation_mode == "invariant":
-            frame_index = t["tree_parent"].view(g, -1)[:, :v]
-        else:
-            frame_index = torch.zeros_like(moved, dtype=torch.int64)
-        candidate = (moved | torch.gather(moved, 1, frame_index)) & t["node_mask"].view(g, v)
-        vertices = torch.nonzero(candidate.flatten()).squeeze(-1)
-        graph = vertices // v
-        poses = t["poses"].view(-1, 3)  # (G·(V+1), 3): each graph's rows and its trash vertex
-        frames = frame_index.flatten()[vertices] + graph * (v + 1)
-        features = node_features(
-            poses[frames],
-            poses[vertices + graph],
-            t["log_degree"].flatten()[vertices],
-            t["owned"].flatten()[vertices],
-            t["node_mask"].flatten()[vertices],
-        )
-        edges = torch.nonzero(self.last_refreshed[:, :e].flatten()).squeeze(-1)
-        r = t["residuals"][..., :e, :].reshape(g * e, 3)[edges]
-        if self.action_scale == "whitened":
-            root = t["sqrt_information"][..., :e, :, :].reshape(g * e, 3, 3)[edges]
-            r = (root @ r.unsqueeze(-1)).squeeze(-1)
-        return vertices, features, edges, r.to(torch.float32)
-
-    def _observed_residuals(self) -> torch.Tensor:
-        """``(B, n, E, 3)`` residuals as observed: metric, or ``Λ^½ r`` when whitened."""
-        t = self.tensors
-        e = self.dims.edges
-        r = t["residuals"][..., :e, :]
-        if self.action_scale == "whitened":
-            r = (t["sqrt_information"][..., :e, :, :] @ r.unsqueeze(-1)).squeeze(-1)
-        return r
+        """What the last :meth:`step` may have changed in :meth:`observation`
+        (:func:`envs.readout.observation_changes`)."""
+        return observation_changes(self)
 
     def _cache_edge_index(self) -> None:
         """``edge_index (B, n, 2, E)``: local (tail, head), 0 on padding (a new tensor)."""
@@ -552,14 +483,3 @@ class PGOCore:
         poses = t["poses"][element].detach().cpu().numpy()
         counts = t["node_mask"][element].sum(-1).cpu().numpy()
         return [poses[agent, :count] for agent, count in enumerate(counts)]
-
-
-def _whiten_attributes(pack: dict[str, np.ndarray]) -> None:
-    """Scale-free edge attributes in place (``action_scale="whitened"``): ``‖t̃‖ → √τ ‖t̃‖`` and
-    ``log diag Λ`` centred on the agent's mean over its edges."""
-    attr, mask = pack["edge_attr"], pack["edge_mask"]
-    e = attr.shape[1]
-    attr[..., 8] *= np.sqrt(pack["tau"][:, :e]).astype(np.float32)
-    count = np.maximum(mask.sum(1, keepdims=True), 1)[..., None]
-    mean = (attr[..., 4:7] * mask[..., None]).sum(1, keepdims=True) / count
-    attr[..., 4:7] = np.where(mask[..., None], attr[..., 4:7] - mean, 0.0)

@@ -167,6 +167,17 @@ def whitening(information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (vectors * root[:, None, :]) @ transposed, (vectors / root[:, None, :]) @ transposed
 
 
+def whiten_attributes(pack: dict[str, np.ndarray]) -> None:
+    """Scale-free edge attributes in place (``action_scale="whitened"``): ``‖t̃‖ → √τ ‖t̃‖`` and
+    ``log diag Λ`` centred on the agent's mean over its edges."""
+    attr, mask = pack["edge_attr"], pack["edge_mask"]
+    e = attr.shape[1]
+    attr[..., 8] *= np.sqrt(pack["tau"][:, :e]).astype(np.float32)
+    count = np.maximum(mask.sum(1, keepdims=True), 1)[..., None]
+    mean = (attr[..., 4:7] * mask[..., None]).sum(1, keepdims=True) / count
+    attr[..., 4:7] = np.where(mask[..., None], attr[..., 4:7] - mean, 0.0)
+
+
 def edge_attributes(
     kinds: np.ndarray,
     information: np.ndarray,

@@ -1,0 +1,101 @@
+"""What the actor sees of the batched PGO state (paper §III-C): the per-agent observation of a
+:class:`envs.core.PGOCore` and, for incremental readers, the entries one step changed in it.
+
+Node poses are observed in a frame vertex's frame (the agent's first owned pose, or each vertex's
+tree parent in the invariant mode); residuals are metric, or ``Λ^½ r`` (in units of the edge's
+own standard deviation) when the action scale is whitened.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from envs.geometry import _gather_rows, node_features
+
+if TYPE_CHECKING:
+    from envs.core import PGOCore
+
+
+def observe(core: PGOCore) -> dict[str, torch.Tensor]:
+    """Per-agent padded observation, every entry with leading shape ``(B, n)``.
+
+    * ``node_features (V, 6)`` float32: pose in the frame vertex's frame (x, y [m], sin θ,
+      cos θ), ``log(1 + degree)``, owned flag (0 = separator copy);
+    * ``node_mask (V,)``; ``edge_index (2, E)`` int64 local (tail, head), 0 on padding;
+    * ``edge_attr (E, 11)`` (:func:`envs.observation.edge_attributes`); ``edge_mask (E,)``;
+    * ``processed (E,)``; ``residuals (E, 3)`` float32 current ``[r_t, r_θ]`` against the
+      measurements (0 on padding), as :func:`observed_residuals` gives them.
+    """
+    t = core.tensors
+    v, e = core.dims.vertices, core.dims.edges
+    poses = t["poses"][:, :, :v]
+    if core.observation_mode == "invariant":
+        parent = t["tree_parent"][:, :, :v]
+        frame = _gather_rows(poses.flatten(0, 1), parent.flatten(0, 1)).view(poses.shape)
+    else:
+        frame = poses[:, :, :1]
+    node_mask = t["node_mask"]
+    return {
+        "node_features": node_features(frame, poses, t["log_degree"], t["owned"], node_mask),
+        "node_mask": node_mask,
+        "edge_index": t["edge_index"],
+        "edge_attr": t["edge_attr"],
+        "edge_mask": t["edge_mask"],
+        "processed": t["processed"][..., :e].clone(),
+        "residuals": observed_residuals(core).to(torch.float32),
+    }
+
+
+def observation_changes(
+    core: PGOCore,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What the core's last step may have changed in :func:`observe`, for an incremental reader
+    (:class:`agents.inference.IncrementalPolicy`): every entry whose value can differ is
+    included (some may be unchanged), every other entry is unchanged.
+
+    Returns:
+        vertices ``(S,)`` flat ids ``(b·n + agent)·V + local`` (ascending): the vertices the
+        step moved and those whose frame vertex it moved; their ``node_features`` ``(S, 6)``
+        float32; edges ``(R,)`` flat ids ``(b·n + agent)·E + slot`` (ascending): the edges
+        whose residual it recomputed; their observed ``residuals`` ``(R, 3)`` float32.
+    """
+    if core.last_moved is None or core.last_refreshed is None:
+        raise RuntimeError("observation_update before the first step")
+    t = core.tensors
+    v, e = core.dims.vertices, core.dims.edges
+    g = core.batch * core.num_agents
+    moved = core.last_moved[:, :v]
+    if core.observation_mode == "invariant":
+        frame_index = t["tree_parent"].view(g, -1)[:, :v]
+    else:
+        frame_index = torch.zeros_like(moved, dtype=torch.int64)
+    candidate = (moved | torch.gather(moved, 1, frame_index)) & t["node_mask"].view(g, v)
+    vertices = torch.nonzero(candidate.flatten()).squeeze(-1)
+    graph = vertices // v
+    poses = t["poses"].view(-1, 3)  # (G·(V+1), 3): each graph's rows and its trash vertex
+    frames = frame_index.flatten()[vertices] + graph * (v + 1)
+    features = node_features(
+        poses[frames],
+        poses[vertices + graph],
+        t["log_degree"].flatten()[vertices],
+        t["owned"].flatten()[vertices],
+        t["node_mask"].flatten()[vertices],
+    )
+    edges = torch.nonzero(core.last_refreshed[:, :e].flatten()).squeeze(-1)
+    r = t["residuals"][..., :e, :].reshape(g * e, 3)[edges]
+    if core.action_scale == "whitened":
+        root = t["sqrt_information"][..., :e, :, :].reshape(g * e, 3, 3)[edges]
+        r = (root @ r.unsqueeze(-1)).squeeze(-1)
+    return vertices, features, edges, r.to(torch.float32)
+
+
+def observed_residuals(core: PGOCore) -> torch.Tensor:
+    """``(B, n, E, 3)`` residuals as observed: metric, or ``Λ^½ r`` when whitened."""
+    t = core.tensors
+    e = core.dims.edges
+    r = t["residuals"][..., :e, :]
+    if core.action_scale == "whitened":
+        r = (t["sqrt_information"][..., :e, :, :] @ r.unsqueeze(-1)).squeeze(-1)
+    return r
