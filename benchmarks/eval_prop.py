@@ -5,8 +5,10 @@ mm-pgo.
 F_actor is F of the assembled estimate (each pose from its owner) after the episode; F_copies
 is what the robots' episode lowers, F of their local copies with each inter-robot edge half
 from each robot (prop-v1's history); F_aligned is F_actor after the consensus's frame
-alignment. "gn F_local" / "gn-sweep F" are the same two for the gn-sweep policy (one
-root-outward pass, each Δ one Gauss–Newton step, no learning: the held-out row of
+alignment and "no-op F_aligned" the start after the same alignment: with it the comparison is
+free of each robot's gauge (its map anchored at its first pose), and "aligned lower" says
+whether F_aligned is below it. "gn F_local" / "gn-sweep F" are the same two for the gn-sweep
+policy (one root-outward pass, each Δ one Gauss–Newton step, no learning: the held-out row of
 agents.heldout) through the same consensus: what the learned part of prop-v1's step must add to.
 "lm F_local" is local-lm's assembled estimate: the robots' local optima before the consensus,
 the bound a local policy chases.
@@ -29,6 +31,7 @@ import torch
 from agents.heldout import local_estimates
 from agents.methods import DEFAULT_CHECKPOINT, solve_prop_v1
 from popbench import objective
+from popbench.alignment import align_frames
 from popbench.datasets import DATASETS
 from popbench.harness.problems import distributed_problem
 from popbench.methods import Budget, get_method
@@ -48,7 +51,7 @@ def main() -> None:
         f"{'dataset':>12} {'F_init':>11} {'F_copies':>11} {'F_actor':>11} {'F_aligned':>11} "
         f"{'prop-v1 F':>11} {'v1 s':>6} {'gn F_local':>11} {'gn-sweep F':>11} "
         f"{'lm F_local':>11} {'local-lm F':>11} {'mm-pgo F':>11} "
-        f"{'actor lowers F':>15}"
+        f"{'no-op F_aligned':>15} {'actor lowers F':>15} {'aligned lower':>14}"
     )
     for name in args.datasets.split(","):
         problem = distributed_problem(name, args.robots, "odometry")
@@ -59,6 +62,8 @@ def main() -> None:
         sweep_f = objective.objective(problem.graph, sweep.poses)
         local = get_method("local-lm")(problem, Budget(), consensus=args.consensus)
         mm = get_method("mm-pgo")(problem, Budget(1000))
+        start = align_frames(problem, local_estimates("no-op", problem, {})).local_poses
+        noop_aligned = objective.objective(problem.graph, problem.assemble(start))
         f_init, f_actor = v1.extras["F_init"], v1.extras["F_actor"]
         f_copies = v1.history[-2] if v1.history.size > 1 else f_init  # [-1] is after consensus
         print(
@@ -66,7 +71,8 @@ def main() -> None:
             f"{v1.extras['F_aligned']:>11.5g} {v1.F:>11.5g} {v1_s:>6.1f} "
             f"{sweep.F_before:>11.5g} {sweep_f:>11.5g} "
             f"{local.extras['F_local']:>11.5g} {local.F:>11.5g} {mm.F:>11.5g} "
-            f"{str(f_actor < f_init):>15}",
+            f"{noop_aligned:>15.5g} {str(f_actor < f_init):>15} "
+            f"{str(v1.extras['F_aligned'] < noop_aligned):>14}",
             flush=True,
         )
 
