@@ -35,10 +35,13 @@ from torchrl.envs import TensorDictPrimer
 
 from agents.config import ModelConfig
 from agents.encoder import (
+    BASE_INPUTS,
     Encoding,
     GraphBatch,
     GraphEncoder,
     Memory,
+    base_inputs,
+    chosen_base,
     edge_embedding_width,
     edge_embeddings,
 )
@@ -106,6 +109,8 @@ class ActorOutput:
         delta_log_prob: [G] log π(δ/Δmax | s, e).
         memory: [G, K, H] refreshed memory state (the next step's input).
         encoding: the encoder output (gates, latent) for the gate penalty and inlier flags.
+        delta_mean, delta_log_std: [G, 3] the pre-tanh Gaussian of the correction (its
+            likelihood of a labelled action: imitation's NLL, the fine-tuning anchor).
     """
 
     edge: Tensor
@@ -117,6 +122,8 @@ class ActorOutput:
     delta_log_prob: Tensor
     memory: Tensor
     encoding: Encoding
+    delta_mean: Tensor
+    delta_log_std: Tensor
 
 
 class HybridActor(nn.Module):
@@ -134,7 +141,8 @@ class HybridActor(nn.Module):
         )
         head_input = edge_dim_out + config.memory_hidden
         self.edge_head = mlp([head_input, config.edge_head_hidden, 1])
-        self.correction_head = mlp([head_input, *config.correction_hidden, 6])
+        correction_input = head_input + (BASE_INPUTS if config.base_features else 0)
+        self.correction_head = mlp([correction_input, *config.correction_hidden, 6])
         self._init_correction_output()
         self.register_buffer("delta_max", torch.tensor(config.delta_max, dtype=torch.float32))
 
@@ -194,6 +202,11 @@ class HybridActor(nn.Module):
         else:
             edge_weights = F.one_hot(edge, log_probs.shape[-1]).to(log_probs.dtype)
         chosen = torch.einsum("ge,ged->gd", edge_weights, features)
+        if self.config.base_features:
+            base = base_inputs(
+                *chosen_base(graphs.base_step, graphs.base_model, edge_weights), self.delta_max
+            )
+            chosen = torch.cat([chosen, base], -1)
 
         mean, log_std = self.correction_head(chosen).chunk(2, dim=-1)
         log_std = log_std.clamp(*self.config.log_std_bounds)
@@ -211,6 +224,8 @@ class HybridActor(nn.Module):
             delta_log_prob=tanh_gaussian_log_prob(pre_tanh, mean, log_std),
             memory=memory,
             encoding=encoding,
+            delta_mean=mean,
+            delta_log_std=log_std,
         )
 
     def _choose_edge(self, log_probs: Tensor, deterministic: bool) -> tuple[Tensor, Tensor]:
@@ -243,6 +258,7 @@ OBSERVATION_FIELDS = (
     "processed",
     "residuals",
 )
+BASE_FIELDS = ("base_step", "base_model")  # read when the actor has base features
 RECURRENT_KEYS = (MEMORY_KEY, PREV_EDGE_KEY, PREV_DELTA_KEY)
 
 
@@ -281,7 +297,7 @@ class GASACPolicy(TensorDictModuleBase):
         super().__init__()
         self.actor = actor
         self.in_keys = [
-            *(OBSERVATION_KEY + (name,) for name in OBSERVATION_FIELDS),
+            *(OBSERVATION_KEY + (name,) for name in self.observation_fields()),
             ACTION_MASK_KEY,
             *RECURRENT_KEYS,
         ]
@@ -293,6 +309,10 @@ class GASACPolicy(TensorDictModuleBase):
             (AGENTS, "inlier"),
             *(("next",) + key for key in RECURRENT_KEYS),
         ]
+
+    def observation_fields(self) -> tuple[str, ...]:
+        """The observation entries the actor reads."""
+        return OBSERVATION_FIELDS + (BASE_FIELDS if self.actor.config.base_features else ())
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         action_mask = tensordict.get(ACTION_MASK_KEY)

@@ -38,6 +38,10 @@ class ModelConfig:
         critic_hidden: critic GNN width; critic_layers its depth (non-recurrent, gated).
         critic_projection: width of the joint projection (paper: 512).
         critic_mlp: hidden widths of the critic MLP after the projection (paper: 512, 256).
+        base_features: the correction head reads the Gauss–Newton base step of the chosen edge
+            and its quadratic model (agents.encoder.base_inputs), and the critic the executed
+            correction (δ + Δ_GN, clipped) and its predicted gain; needs an environment with the
+            base step (TaskConfig.base = "gauss-newton"). False: the earlier actors' heads.
     """
 
     hidden: int = 128
@@ -60,6 +64,7 @@ class ModelConfig:
     critic_layers: int = 5
     critic_projection: int = 512
     critic_mlp: tuple[int, ...] = (512, 256)
+    base_features: bool = False
 
 
 @dataclass(frozen=True)
@@ -96,6 +101,25 @@ class AlgorithmConfig:
             beyond the paper, docs/training.md).
         gate_weight: weight of the supervised gate loss against the injected outlier labels
             (agents.loss "loss_gate"; 0 = none; beyond the paper).
+        reward: the training environment's L (envs.core): "localisation" (the paper's, ground
+            truth) or "F" (the local objective: what the robot observes, what imitation
+            targets and what the tables measure).
+        auto_reward_scale: set c at the end of the warm-up to 1 / std of the warm-up rewards
+            (reward normalisation; reward_scale is then ignored).
+        auto_delta_entropy: set the correction's target entropy at the end of the warm-up to
+            the start policy's own, −mean log π(δ) on the warm-up states (exploration on the
+            scale the imitation head learnt, not the SAC heuristic −3).
+        anchor_weight: λ₀ of a KL term toward the start (imitation) policy, KL(π ‖ π₀) of the
+            edge choice plus of the correction's pre-tanh Gaussian on the chosen edge, with
+            weight λ_k = λ₀ · max(0, 1 − k / anchor_updates) at actor update k (0 = none;
+            beyond the paper: policy regularisation toward a prior, cf. Nair et al. 2018's BC
+            term and Fujimoto & Gu 2021's TD3+BC).
+        anchor_updates: actor updates over which the anchor's weight decays to 0.
+        terminal_bonus: the training environment's terminal log-ratio bonus (envs.core; the
+            paper's). It depends on the episode's start, which no state shows.
+        critic_patience: > 0: the actor starts learning once the critic's TD error on held-out
+            replayed transitions did not fall for this many checks (every 16 critic updates),
+            at the latest after critic_warmup_updates; 0: after critic_warmup_updates exactly.
     """
 
     gamma: float = 0.99
@@ -118,6 +142,13 @@ class AlgorithmConfig:
     max_grad_norm: float = 10.0
     bc_weight: float = 0.0
     gate_weight: float = 0.0
+    reward: str = "localisation"
+    auto_reward_scale: bool = False
+    auto_delta_entropy: bool = False
+    anchor_weight: float = 0.0
+    anchor_updates: int = 1_000
+    terminal_bonus: bool = True
+    critic_patience: int = 0
 
 
 @dataclass(frozen=True)
@@ -364,9 +395,33 @@ CPU_IMITATION_ROBUST = TrainConfig(
     task=CPU_IMITATION.task,
     imitation=dataclasses.replace(CPU_IMITATION.imitation, gate_weight=1.0),
 )
+# The issue-26 recipe (docs/training.md): cpu-imitation (clean problems) with a correction head
+# that reads the base step it corrects (ModelConfig.base_features) and learns its Gaussian by
+# likelihood, then a GA-SAC fine-tuning on the local F with the executed correction in the critic.
+# The fine-tuning: the local F as reward without the terminal bonus, normalised by the warm-up
+# rewards' spread (MSE critic), the start policy's own correction entropy as target, a critic
+# warm-up until its held-out TD error stops falling (at most 256 updates), and a KL anchor to the
+# imitation actor decaying over the 256 actor updates that 4,096 frames leave.
+CPU_RESIDUAL = dataclasses.replace(
+    CPU_IMITATION,
+    model=dataclasses.replace(CPU_IMITATION.model, base_features=True),
+    algorithm=dataclasses.replace(
+        CPU_IMITATION.algorithm,
+        reward="F",
+        terminal_bonus=False,
+        auto_reward_scale=True,
+        huber_delta=None,
+        auto_delta_entropy=True,
+        anchor_weight=1.0,
+        anchor_updates=256,
+        critic_warmup_updates=256,
+        critic_patience=4,
+    ),
+)
 PRESETS: dict[str, TrainConfig] = {
     "paper": TrainConfig(),
     "cpu-small": CPU_SMALL,
     "cpu-imitation": CPU_IMITATION,
     "cpu-imitation-robust": CPU_IMITATION_ROBUST,
+    "cpu-residual": CPU_RESIDUAL,
 }

@@ -2,8 +2,11 @@
 
 A shared, non-recurrent gated GNN embeds every robot's local graph. For each robot the vector
 x_i = [graph latent ‖ embedding of its chosen edge [h_p ‖ h_q ‖ a_pq ‖ symlog r_pq] ‖
-correction / Δmax ‖ symlog(r_pq + Δ) ‖ episode progress] is formed, and the n vectors are
-concatenated (the paper's joint input). Each twin head is one MLP shared by the agents:
+correction / Δmax ‖ symlog(r_pq + Δ) ‖ episode progress] is formed (with the base step,
+`ModelConfig.base_features`, the correction is the *executed* one, clip(δ + Δ_GN), and x_i adds
+tanh of its predicted gain and of Δ_GN's by the quadratic model of envs.basestep: the step
+reward's argument to second order, so the critic sees what the reward depends on), and the n
+vectors are concatenated (the paper's joint input). Each twin head is one MLP shared by the agents:
 Q_i = MLP([x_i ‖ x_1 ‖ … ‖ x_n]) (projection to 512, then (512, 256) → 1), a MAAC-style
 Q_i(s, a_1..a_n) read against agent i's own reward.
 
@@ -44,22 +47,24 @@ from agents.encoder import (
     Encoding,
     GraphBatch,
     GraphEncoder,
+    chosen_base,
     edge_embedding_width,
     edge_embeddings,
+    predicted_gain,
     symlog,
 )
 
 
 def corrected_residual(residuals: Tensor, edge_weights: Tensor, delta: Tensor) -> Tensor:
-    """[G, 3] residual of each chosen edge after its correction: r + Δ, angle wrapped.
+    """[G, 3] residual of each chosen edge after its correction: r + Δ.
 
     The environment moves the head q in the tail's frame by exactly Δ (envs.core, eq. C), so the
-    chosen edge's residual [R_pᵀ(t_q − t_p) − t̃, θ_q − θ_p − θ̃] becomes r + Δ. Args: residuals
-    [G, E, 3]; edge_weights [G, E + 1] (row E, the no-op, has a zero residual); delta [G, 3].
+    chosen edge's residual [R_pᵀ(t_q − t_p) − t̃, θ_q − θ_p − θ̃] becomes r + Δ (in the action's
+    units: metric, or whitened, where an angle is not wrapped at ±π). Args: residuals [G, E, 3];
+    edge_weights [G, E + 1] (row E, the no-op, has a zero residual); delta [G, 3].
     """
     padded = torch.cat([residuals, torch.zeros_like(residuals[:, :1])], dim=1).to(delta.dtype)
-    moved = torch.einsum("ge,ged->gd", edge_weights, padded) + delta
-    return torch.cat([moved[:, :2], wrap_angle(moved[:, 2:])], dim=-1)
+    return torch.einsum("ge,ged->gd", edge_weights, padded) + delta
 
 
 def progress(graphs: GraphBatch) -> Tensor:
@@ -77,12 +82,8 @@ def progress(graphs: GraphBatch) -> Tensor:
     return torch.stack([left / real, torch.log1p(choices)], dim=-1)
 
 
-def wrap_angle(angle: Tensor) -> Tensor:
-    """Angles (rad) wrapped to [−π, π)."""
-    return angle - 2.0 * torch.pi * torch.floor((angle + torch.pi) / (2.0 * torch.pi))
-
-
 PROGRESS_FEATURES = 2  # see progress()
+BASE_GAIN_FEATURES = 2  # tanh of the predicted gain of the executed correction and of Δ_GN
 
 
 class CentralCritic(nn.Module):
@@ -100,7 +101,9 @@ class CentralCritic(nn.Module):
             + 3
             + RESIDUAL_FEATURES
             + PROGRESS_FEATURES
+            + (BASE_GAIN_FEATURES if config.base_features else 0)
         )
+        self.base_features = config.base_features
         self.heads = nn.ModuleList(
             nn.Sequential(
                 nn.Linear((agents + 1) * per_agent, config.critic_projection),
@@ -135,9 +138,16 @@ class CentralCritic(nn.Module):
         embeddings = edge_embeddings(encoding.nodes, graphs)
         weights = edge_weights.to(embeddings.dtype)
         chosen = torch.einsum("ge,ged->gd", weights, embeddings)
+        extra = []
+        if self.base_features:  # what the environment executes: δ + Δ_GN, clipped
+            step, model = chosen_base(graphs.base_step, graphs.base_model, weights)
+            delta = torch.maximum(torch.minimum(delta + step, self.delta_max), -self.delta_max)
+            gains = torch.stack([predicted_gain(model, delta), predicted_gain(model, step)], -1)
+            extra = [torch.tanh(gains)]
         after = symlog(corrected_residual(graphs.residuals, weights, delta))
         per_agent = torch.cat(
-            [encoding.pooled, chosen, delta / self.delta_max, after, progress(graphs)], dim=-1
+            [encoding.pooled, chosen, delta / self.delta_max, after, progress(graphs), *extra],
+            dim=-1,
         )
         own = per_agent.reshape(-1, self.agents, per_agent.shape[-1])  # [B, n, d]
         batch, agents, width = own.shape

@@ -47,6 +47,9 @@ class GraphBatch:
         processed: [G, E] bool, True for edges already corrected in this episode.
         action_mask: [G, E + 1] bool, the edges the actor may pick: unprocessed real edges, and
             the no-op slot E, which the environment allows only when none is left.
+        base_step: [G, E, 3] float, the Gauss–Newton base step of every edge in action units,
+            and base_model: [G, E, 9] its quadratic model relative to the local F
+            (envs.basestep.observed_model); None in an environment without the base step.
     """
 
     node_features: Tensor
@@ -57,6 +60,8 @@ class GraphBatch:
     residuals: Tensor
     processed: Tensor
     action_mask: Tensor
+    base_step: Tensor | None = None
+    base_model: Tensor | None = None
 
     @property
     def num_graphs(self) -> int:
@@ -72,8 +77,10 @@ class GraphBatch:
         """
         lead = action_mask.shape[:-1]
 
-        def flat(key: str, event_dims: int) -> Tensor:
-            value = observation.get(key)
+        def flat(key: str, event_dims: int) -> Tensor | None:
+            value = observation.get(key, None)
+            if value is None:
+                return None
             return value.reshape(-1, *value.shape[len(lead) : len(lead) + event_dims])
 
         return cls(
@@ -85,6 +92,8 @@ class GraphBatch:
             residuals=flat("residuals", 2),
             processed=flat("processed", 1),
             action_mask=action_mask.reshape(-1, action_mask.shape[-1]),
+            base_step=flat("base_step", 2),
+            base_model=flat("base_model", 2),
         )
 
 
@@ -394,3 +403,36 @@ class Memory(nn.Module):
             x = cell(x, state[:, k])
             new_states.append(x)
         return torch.stack(new_states, dim=1)
+
+
+BASE_INPUTS = 13  # base_inputs(): Δ_GN / bound (3), symlog of its model (9), its predicted gain
+
+
+def chosen_base(
+    base_step: Tensor, base_model: Tensor, edge_weights: Tensor
+) -> tuple[Tensor, Tensor]:
+    """(Δ_GN [G, 3], model [G, 9]) of each graph's chosen edge, from every edge's `base_step`
+    [G, E, 3] and `base_model` [G, E, 9] (GraphBatch) and the choice `edge_weights` [G, E + 1]
+    (one-hot or straight-through; the no-op E has zeros)."""
+    weights = edge_weights[:, :-1].to(base_step.dtype)
+    step = torch.einsum("ge,ged->gd", weights, base_step)
+    model = torch.einsum("ge,ged->gd", weights, base_model)
+    return step, model
+
+
+def predicted_gain(model: Tensor, delta: Tensor) -> Tensor:
+    """[G] the fraction of the local F that a correction `delta` [G, 3] (action units) removes
+    by the quadratic model [G, 9] (envs.basestep.observed_model): −(2 gᵀΔ + ΔᵀHΔ) / F."""
+    g, upper = model[:, :3], model[:, 3:]
+    xx, xy, xt, yy, yt, tt = upper.unbind(-1)
+    x, y, t = delta.unbind(-1)
+    quadratic = xx * x * x + yy * y * y + tt * t * t + 2 * (xy * x * y + xt * x * t + yt * y * t)
+    return -(2.0 * (g * delta).sum(-1) + quadratic)
+
+
+def base_inputs(step: Tensor, model: Tensor, bound: Tensor) -> Tensor:
+    """[G, 13] what the correction head reads of the base step it corrects: Δ_GN / bound
+    (clipped to ±1), symlog of the model and tanh of Δ_GN's predicted gain."""
+    scaled = torch.clamp(step / bound, -1.0, 1.0)
+    gain = torch.tanh(predicted_gain(model, step)).unsqueeze(-1)
+    return torch.cat([scaled, symlog(model), gain], -1)

@@ -9,7 +9,7 @@ the expert's labels of that state (Ross et al. 2011, DAgger, with one gradient s
 state instead of an aggregated dataset):
 
     L_edge  = −log Σ_{e ∈ right(s)} π(e | s)                      (both heads share the GNN)
-    L_delta = ‖(δ_θ(s, e_learner) − clip(δ*(s, e_learner))) / bound‖²
+    L_delta = −log N(atanh(δ*(s, e_learner) / bound) | μ_θ, σ_θ²)  (the correction's likelihood)
 
 where ``bound`` is the action bound (Δmax, or the whitened bound) (agents.loss_terms). With
 ``gate_weight`` > 0 and training problems with injected outliers (``outlier_rate_max``) the
@@ -148,7 +148,13 @@ def imitate(
                 expert_delta = expert.actor_delta(expert_edge)
             acting = out.edge < e
             edge_loss, delta_loss = imitation_losses(
-                out.edge_log_probs, right, out.delta, label, acting, bound
+                out.edge_log_probs,
+                right,
+                out.delta_mean,
+                out.delta_log_std,
+                label,
+                acting,
+                bound,
             )
             loss = edge_loss + config.delta_weight * delta_loss
             gate_loss = torch.zeros(())

@@ -41,7 +41,14 @@ import torch
 from torch import Tensor
 
 from agents.actor import HybridActor, masked_log_softmax
-from agents.encoder import INTER_LOOP_COLUMN, LOG_INFO_COLUMNS, GraphBatch, edge_embeddings
+from agents.encoder import (
+    INTER_LOOP_COLUMN,
+    LOG_INFO_COLUMNS,
+    GraphBatch,
+    base_inputs,
+    chosen_base,
+    edge_embeddings,
+)
 
 
 def _members(ids: Tensor, size: int) -> Tensor:
@@ -221,12 +228,16 @@ class IncrementalPolicy:
     # -- acting ----------------------------------------------------------------------------------
 
     @torch.no_grad()
-    def act(self, action_mask: Tensor) -> tuple[Tensor, Tensor]:
+    def act(
+        self, action_mask: Tensor, base: tuple[Tensor, Tensor] | None = None
+    ) -> tuple[Tensor, Tensor]:
         """One deterministic decision for every graph: (edge [G] long, delta [G, 3]).
 
         Args:
             action_mask: [G, E + 1] bool, the env's action mask; it must agree with the edges
                 this policy chose so far (the environment processes exactly the chosen edge).
+            base: (base_step [G, E, 3], base_model [G, E, 9]) of the current state, for an
+                actor with base features (envs.readout.base_observation).
         """
         if not torch.equal(action_mask[:, : self.shape[2]].sum(1), self.remaining):
             raise RuntimeError("action mask out of step with the edges this policy chose")
@@ -242,6 +253,10 @@ class IncrementalPolicy:
         context_term = context @ self.head_context_weight.T + first.bias
         edge = self._choose(context_term, last, action_mask)
         chosen = torch.cat([self.embeddings[rows, edge], context], -1)
+        if actor.config.base_features:
+            weights = torch.nn.functional.one_hot(edge, self.shape[2] + 1).to(chosen.dtype)
+            step, model = chosen_base(*base, weights)
+            chosen = torch.cat([chosen, base_inputs(step, model, actor.delta_max)], -1)
         mean, _ = actor.correction_head(chosen).chunk(2, dim=-1)
         delta = actor.delta_max * torch.tanh(mean)
         self.prev_edge, self.prev_delta = edge, delta

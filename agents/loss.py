@@ -44,6 +44,13 @@ and only when its weight is > 0, so that the paper's GA-SAC is unchanged by defa
               expert's, in units of the action bound.
   loss_gate = λ_gate_sup · L_gate: the supervised gate loss of the actor pass's gate logits
               against ("agents", "labels", "outlier"), the injected outliers.
+  loss_anchor = λ_k · E[KL(π(·|s) ‖ π₀(·|s)) + KL(N(μ, σ²) ‖ N(μ₀, σ₀²))]: the fine-tuning
+              anchor toward the start policy π₀ (a frozen copy of the imitation actor; the
+              correction's KL on the actor's chosen edge, in the pre-tanh space), its weight
+              decaying linearly to 0 (AlgorithmConfig.anchor_weight / anchor_updates).
+
+Reward scale and target entropy are buffers: with AlgorithmConfig.auto_reward_scale /
+auto_delta_entropy the trainer sets them from the warm-up data (agents.trainer).
 
 Both reach only the actor's parameters. They do not depend on the critic, so they act during
 the critic warm-up too (agents.trainer.optimise leaves out loss_actor only).
@@ -63,6 +70,7 @@ be summed and back-propagated once.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -133,13 +141,19 @@ class GASACLoss(LossModule):
 
     def __init__(self, actor: HybridActor, critic: CentralCritic, config: AlgorithmConfig) -> None:
         super().__init__()
+        # the start policy π₀, frozen (set_anchor copies the start weights in)
+        anchor = copy.deepcopy(actor).requires_grad_(False) if config.anchor_weight > 0 else None
         self.convert_to_functional(actor, "actor_network")
         self.convert_to_functional(critic, "critic_network", create_target_params=True)
         self.gamma = config.gamma
         self.edge_entropy_ratio = config.edge_entropy_ratio
-        self.delta_target_entropy = config.delta_target_entropy
         self.gate_l1 = config.gate_l1
-        self.reward_scale = config.reward_scale
+        # set by the trainer at the end of the warm-up when auto_* (saved with the loss)
+        self.register_buffer("reward_scale", torch.tensor(float(config.reward_scale)))
+        self.register_buffer("delta_target_entropy", torch.tensor(config.delta_target_entropy))
+        self.anchor_weight = config.anchor_weight
+        self.register_buffer("anchor_scale", torch.tensor(1.0))  # λ_k / λ₀, set per update
+        self.anchor = anchor
         self.huber_delta = config.huber_delta
         self.bc_weight = config.bc_weight
         self.gate_weight = config.gate_weight
@@ -147,6 +161,11 @@ class GASACLoss(LossModule):
         self.log_alpha_delta = nn.Parameter(torch.tensor(math.log(config.init_alpha_delta)))
 
     # -- parameter groups (one optimiser each: lr 3e-4 actor, 3e-5 critic) ----------------------
+
+    def set_anchor(self, actor: HybridActor) -> None:
+        """Freeze a copy of `actor`'s current weights as the anchor policy π₀."""
+        if self.anchor is not None:
+            self.anchor.load_state_dict(actor.state_dict())
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [p for p in self.actor_network_params.values(True, True) if p.requires_grad]
@@ -263,6 +282,35 @@ class GASACLoss(LossModule):
         delta_gap = (out.delta_log_prob + self.delta_target_entropy).detach()
         return -(self.log_alpha_delta * acting * delta_gap).sum() / acting.sum().clamp(min=1.0)
 
+    @torch.no_grad()
+    def _anchor_pass(
+        self, tensordict: TensorDictBase, graphs: GraphBatch, edge: Tensor
+    ) -> ActorOutput:
+        """π₀'s deterministic pass on the same state, teacher-forced on the actor's edge."""
+        lead = tensordict.get(self.tensor_keys.action_mask).shape[:-1]
+        memory, prev_edge, prev_delta = recurrent_inputs(
+            tensordict, self.anchor, lead, graphs.action_mask.shape[-1], False
+        )
+        return self.anchor(graphs, memory, prev_edge, prev_delta, deterministic=True, edge=edge)
+
+    def anchor_loss(
+        self, tensordict: TensorDictBase, graphs: GraphBatch, out: ActorOutput, acting: Tensor
+    ) -> Tensor:
+        """λ_k · mean[KL(π(·|s) ‖ π₀(·|s)) + KL(N(μ, σ²) ‖ N(μ₀, σ₀²)) on the chosen edge]
+        (AlgorithmConfig.anchor_weight; the correction's KL only where the agent acts)."""
+        start = self._anchor_pass(tensordict, graphs, out.edge)
+        finite = torch.where(
+            out.action_mask, out.edge_log_probs, torch.zeros_like(out.edge_log_probs)
+        )
+        finite_start = torch.where(
+            out.action_mask, start.edge_log_probs, torch.zeros_like(start.edge_log_probs)
+        )
+        edge_kl = (finite.exp() * (finite - finite_start) * out.action_mask).sum(-1)
+        log_ratio = start.delta_log_std - out.delta_log_std
+        variance = (2 * out.delta_log_std).exp() + (out.delta_mean - start.delta_mean) ** 2
+        delta_kl = (log_ratio + variance / (2 * (2 * start.delta_log_std).exp()) - 0.5).sum(-1)
+        return self.anchor_weight * self.anchor_scale * (edge_kl + acting * delta_kl).mean()
+
     def bc_loss(self, tensordict: TensorDictBase, graphs: GraphBatch) -> Tensor:
         """λ_bc · (L_edge + L_delta) on the stored labels (module docstring): one deterministic
         actor pass from the stored recurrent state, teacher-forced on the expert's edge."""
@@ -281,7 +329,13 @@ class GASACLoss(LossModule):
         right = tensordict.get(keys.right_edges).reshape(-1, choices)
         label = tensordict.get(keys.expert_delta).reshape(-1, 3)
         edge_loss, delta_loss = imitation_losses(
-            out.edge_log_probs, right, out.delta, label, expert_edge < choices - 1, bound
+            out.edge_log_probs,
+            right,
+            out.delta_mean,
+            out.delta_log_std,
+            label,
+            expert_edge < choices - 1,
+            bound,
         )
         return self.bc_weight * (edge_loss + delta_loss)
 
@@ -310,6 +364,8 @@ class GASACLoss(LossModule):
         loss_alpha_edge, edge_target = self.alpha_edge_loss(out, graphs)
         loss_alpha_delta = self.alpha_delta_loss(out, acting)
         supervised = {}
+        if self.anchor is not None:
+            supervised["loss_anchor"] = self.anchor_loss(tensordict, graphs, out, acting)
         if self.bc_weight > 0:
             supervised["loss_bc"] = self.bc_loss(tensordict, graphs)
         if self.gate_weight > 0:

@@ -5,10 +5,19 @@ the paper (docs/training.md).
 Behaviour cloning (the expert of envs.expert labels a state s):
 
     L_edge  = −log Σ_{e ∈ right(s)} π(e | s)
-    L_delta = ‖(δ_θ(s, e) − clip(δ*(s, e))) / bound‖²
+    L_delta = Σ_k huber((u*_k − μ_k) / s_u) + Σ_k ½ min(((u*_k − sg(μ_k)) / σ_k)², 9) + log σ_k,
+              u* = atanh(clip(δ*(s, e)) / bound)
 
-with ``bound`` the action bound (Δmax, or the whitened bound) and δ* the actor output that makes
-the environment execute the expert's Δ on e.
+with ``bound`` the action bound (Δmax, or the whitened bound), δ* the actor output that makes
+the environment execute the expert's Δ on e, (μ, σ) the correction head's pre-tanh Gaussian
+(δ = bound · tanh(u), u ~ N(μ, σ²)) and sg the stop-gradient. The mean regresses the label in
+units of the batch's own label scale s_u (1.4826 × the median absolute deviation of u*,
+robust to the heavy tail of labels near outliers), where a squared error in units of the ±5σ
+bound left the head a constant (issue 26). The second term is the Gaussian likelihood of the
+label under σ with the mean held fixed and the standardised error capped at 3: σ learns the
+head's real error (the exploration width GA-SAC starts from) without the 1/σ² weight that made
+a full NLL's mean gradient explode on rare large labels (measured in a pilot: delta loss spikes
+of 10³ and an episode whose local F rose).
 
 Supervised gate loss (issue 15, item 4): every layer's gate logit α_ℓ/τ of an edge is regressed
 on the injected label "keep" (1 for an inlier, 0 for an injected outlier) by binary cross-entropy,
@@ -24,11 +33,19 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F  # noqa: N812
 
+LABEL_MARGIN = 1e-3  # |δ*| / bound ≤ 1 − margin before the atanh
+
+
+def pre_tanh_label(label: torch.Tensor, bound: torch.Tensor) -> torch.Tensor:
+    """(G, 3) u* = atanh(δ* / bound) of a label δ* clipped to the bound (less a margin)."""
+    return torch.atanh(torch.clamp(label / bound, -1.0 + LABEL_MARGIN, 1.0 - LABEL_MARGIN))
+
 
 def imitation_losses(
     log_probs: torch.Tensor,
     right: torch.Tensor,
-    delta: torch.Tensor,
+    mean: torch.Tensor,
+    log_std: torch.Tensor,
     label: torch.Tensor,
     acting: torch.Tensor,
     bound: torch.Tensor,
@@ -38,16 +55,32 @@ def imitation_losses(
 
     Args:
         log_probs: (G, E + 1) log π(e | s); right: (G, E + 1) bool right choices.
-        delta: (G, 3) the learner's correction on an edge; label: (G, 3) the expert's on it.
+        mean, log_std: (G, 3) the learner's pre-tanh Gaussian on an edge; label: (G, 3) the
+            expert's action on it.
         acting: (G,) bool, the edge is a real edge (not the no-op).
         bound: (3,) the action bound.
     """
     right_log_prob = torch.logsumexp(log_probs.masked_fill(~right, float("-inf")), -1)
     edge_loss = -right_log_prob.mean()
-    target = torch.maximum(torch.minimum(label, bound), -bound)
-    squared = (((delta - target) / bound) ** 2).sum(-1)
-    delta_loss = (squared * acting).sum() / acting.sum().clamp(min=1)
+    target = pre_tanh_label(label, bound)
+    scale = label_scale(target[acting]) if bool(acting.any()) else target.new_ones(3)
+    fit = F.huber_loss(mean / scale, target / scale, reduction="none", delta=1.0)
+    standardised = ((target - mean.detach()) / log_std.exp()) ** 2
+    width = 0.5 * standardised.clamp(max=STANDARDISED_CAP**2) + log_std
+    per_graph = (fit + width).sum(-1)
+    delta_loss = (per_graph * acting).sum() / acting.sum().clamp(min=1)
     return edge_loss, delta_loss
+
+
+STANDARDISED_CAP = 3.0  # |u* − μ| / σ beyond which the width term stops growing
+MIN_LABEL_SCALE = 1e-3  # floor of s_u (pre-tanh units)
+
+
+def label_scale(target: torch.Tensor) -> torch.Tensor:
+    """(3,) s_u = 1.4826 · median |u* − median u*| of the labels ``target (K, 3)``, floored."""
+    median = target.median(0).values
+    spread = 1.4826 * (target - median).abs().median(0).values
+    return spread.clamp(min=MIN_LABEL_SCALE).detach()
 
 
 def gate_supervision_loss(

@@ -134,6 +134,7 @@ def run_episode(
     trained in (its checkpoint's)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
+    from envs.readout import base_observation
 
     start = time.perf_counter()
     n = problem.num_robots
@@ -166,7 +167,10 @@ def run_episode(
     horizon = horizon if max_steps is None else min(horizon, max_steps)
     for _ in range(horizon):
         tick = time.perf_counter()
-        edge, delta = policy.act(core.action_mask()[0])
+        base = None
+        if actor.config.base_features:
+            base = tuple(value[0] for value in base_observation(core).values())
+        edge, delta = policy.act(core.action_mask()[0], base)
         core.step(edge.view(1, n), delta.view(1, n, 3))
         policy.observe_update(*core.observation_update())
         step_s.append(time.perf_counter() - tick)

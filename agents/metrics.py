@@ -27,6 +27,11 @@ METRIC_FIELDS = (
     "gate_mean",
     "loss_bc",
     "loss_gate",
+    "loss_anchor",
+    "td_error",
+    "critic_probe",
+    "reward_scale",
+    "delta_target_entropy",
     "eval_f_reduction",
     "wall_s",
 )

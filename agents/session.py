@@ -32,6 +32,12 @@ class Session:
     dims: dict[str, int]
     frames: int = 0
     updates: int = 0
+    actor_updates: int = 0  # updates that trained the actor (the anchor's schedule)
+    actor_learns: bool = False  # the critic warm-up is over
+
+    def dims_pair(self) -> tuple[int, int]:
+        """(agents n, edge choices E + 1): the recurrent-state primer's arguments."""
+        return self.dims["agents"], self.dims["choices"]
 
 
 def make_env(config: TrainConfig, batch_size: int, seed: int, **options: Any):
@@ -57,7 +63,11 @@ def build_session(config: TrainConfig) -> Session:
     torch.manual_seed(experiment.seed)
     # the training env: the experiment's outliers, and the labels the supervised terms read
     supervised = algorithm.bc_weight > 0 or algorithm.gate_weight > 0
-    training_options: dict[str, Any] = {"outlier_rate_max": experiment.outlier_rate_max}
+    training_options: dict[str, Any] = {
+        "outlier_rate_max": experiment.outlier_rate_max,
+        "reward": algorithm.reward,
+        "terminal_bonus": algorithm.terminal_bonus,
+    }
     if supervised:
         training_options["labels"] = True
     base_env = make_env(config, experiment.num_envs, experiment.seed, **training_options)
@@ -96,6 +106,8 @@ def session_state(session: Session) -> dict[str, Any]:
         "optimisers": {name: opt.state_dict() for name, opt in session.optimisers.items()},
         "frames": session.frames,
         "updates": session.updates,
+        "actor_updates": session.actor_updates,
+        "actor_learns": session.actor_learns,
     }
 
 
@@ -108,3 +120,5 @@ def restore(session: Session, checkpoint: Path | dict[str, Any]) -> None:
     for name, optimiser in session.optimisers.items():
         optimiser.load_state_dict(state["optimisers"][name])
     session.frames, session.updates = int(state["frames"]), int(state["updates"])
+    session.actor_updates = int(state.get("actor_updates", 0))
+    session.actor_learns = bool(state.get("actor_learns", False))

@@ -53,6 +53,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from agents.checkpoint import read_checkpoint, save_checkpoint
 from agents.config import TrainConfig
+from agents.diagnostics import critic_probe
 from agents.imitation import run_phase as run_imitation_phase
 from agents.metrics import METRIC_FIELDS, EpisodeTracker, plot_learning_curve, truncate_metrics
 from agents.resume import check_resume_config
@@ -64,12 +65,18 @@ EVAL_SEED_OFFSET = 1_000_003
 def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
     """One GA-SAC step on a minibatch: the summed losses reach disjoint parameter groups.
 
-    During the first `critic_warmup_updates` updates only the critic and the temperatures
-    learn: the actor's loss is left out, so the actor does not follow the gradient of a critic
-    that cannot yet tell one correction from another.
+    Until the critic warm-up is over (`session.actor_learns`, set by the trainer: after
+    `critic_warmup_updates` updates, or earlier by `critic_patience`) only the critic and the
+    temperatures learn: the actor's loss is left out, so the actor does not follow the gradient
+    of a critic that cannot yet tell one correction from another. The anchor's weight follows
+    the actor's updates (AlgorithmConfig.anchor_updates).
     """
+    algorithm = session.config.algorithm
+    actor_learns = session.actor_learns or session.updates >= algorithm.critic_warmup_updates
+    session.actor_learns = actor_learns
+    decay = max(0.0, 1.0 - session.actor_updates / max(algorithm.anchor_updates, 1))
+    session.loss.anchor_scale.fill_(decay)
     out = session.loss(batch)
-    actor_learns = session.updates >= session.config.algorithm.critic_warmup_updates
     total = sum(
         out[key]
         for key in out.keys()
@@ -85,7 +92,58 @@ def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
         optimiser.step()
     session.updater.step()
     session.updates += 1
+    session.actor_updates += int(actor_learns)
     return {key: float(value.detach()) for key, value in out.items()}
+
+
+@torch.no_grad()
+def calibrate(session: Session, warmup: TensorDictBase) -> dict[str, float]:
+    """At the end of the warm-up (before the first update): the reward scale c = 1 / std of the
+    warm-up rewards (auto_reward_scale) and the correction's target entropy = the start
+    policy's own on the warm-up states (auto_delta_entropy); returns what was set."""
+    algorithm, loss = session.config.algorithm, session.loss
+    values = {}
+    if algorithm.auto_reward_scale:
+        reward = warmup["next", "agents", "reward"].float()
+        loss.reward_scale.fill_(1.0 / float(reward.std().clamp(min=1e-6)))
+        values["reward_scale"] = float(loss.reward_scale)
+    if algorithm.auto_delta_entropy:
+        graphs = loss._graphs(warmup, next_=False)
+        out = loss._act(warmup, graphs, next_=False)
+        acting = loss._acting(out)
+        mean_log_prob = (acting * out.delta_log_prob).sum() / acting.sum().clamp(min=1.0)
+        loss.delta_target_entropy.fill_(-float(mean_log_prob))
+        values["delta_target_entropy"] = float(loss.delta_target_entropy)
+    return values
+
+
+@torch.no_grad()
+def held_out_td_error(session: Session, transitions: TensorDictBase) -> float:
+    """Mean |TD error| of the critic on `transitions` kept out of the replay buffer."""
+    loss = session.loss
+    graphs = loss._graphs(transitions, next_=False)
+    target = loss.soft_target(transitions, loss._graphs(transitions, next_=True), loss._alphas())
+    _, _, td_error = loss.qvalue_loss(transitions, graphs, target)
+    return float(td_error.abs().mean())
+
+
+class CriticWarmup:
+    """The critic-only phase's stopping rule (AlgorithmConfig.critic_patience): the held-out TD
+    error, checked every `every` updates, has not fallen by 1 % for `patience` checks."""
+
+    def __init__(self, patience: int, every: int = 16) -> None:
+        self.patience, self.every = patience, every
+        self.best, self.stale = float("inf"), 0
+
+    def over(self, session: Session, heldout: TensorDictBase | None) -> bool:
+        if self.patience <= 0 or heldout is None or session.updates % self.every:
+            return False
+        error = held_out_td_error(session, heldout)
+        if error < 0.99 * self.best:
+            self.best, self.stale = error, 0
+        else:
+            self.stale += 1
+        return self.stale >= self.patience
 
 
 @torch.no_grad()
@@ -158,6 +216,8 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
         metrics_path.unlink()
     if config.imitation.episodes > 0 and session.frames == 0:  # before any GA-SAC frame
         run_imitation_phase(session, out_dir)
+    if session.frames == 0:  # the fine-tuning's start policy is the anchor's π₀
+        session.loss.set_anchor(session.actor)
     resumed_from = session.frames
     remaining = experiment.frames - session.frames
     if remaining > 0:
@@ -250,6 +310,8 @@ def _run(
         session.config, experiment.eval_problems, experiment.seed + EVAL_SEED_OFFSET, reward="F"
     )
     tracker = EpisodeTracker(experiment.num_envs)
+    warmup_rule = CriticWarmup(algorithm.critic_patience)
+    heldout: TensorDictBase | None = None  # transitions kept out of the buffer (warm-up rule)
     next_checkpoint = _next_multiple(session.frames, experiment.checkpoint_interval)
     next_eval = _next_multiple(session.frames, experiment.eval_interval)
     start = time.perf_counter() - wall_offset
@@ -271,9 +333,20 @@ def _run(
                         episodes=tracker.episodes,
                         episode_return=sum(returns) / len(returns) if returns else "",
                     )
-                    buffer.extend(data.reshape(-1))
+                    transitions = data.reshape(-1)
+                    if heldout is None and session.updates == 0 and session.frames >= warmup_end:
+                        heldout = transitions[
+                            : transitions.numel() // 4
+                        ]  # a quarter, never replayed
+                        transitions = transitions[transitions.numel() // 4 :]
+                        buffer.extend(transitions)
+                        pending.update(calibrate(session, buffer[:]))
+                    else:
+                        buffer.extend(transitions)
                     if session.frames >= warmup_end and len(buffer) >= algorithm.batch_size:
                         for _ in range(algorithm.updates_per_batch):
+                            if not session.actor_learns and warmup_rule.over(session, heldout):
+                                session.actor_learns = True
                             with interrupts_deferred():  # never stop half-way through a step
                                 logs = optimise(session, buffer.sample())
                                 pending.update(
@@ -283,6 +356,8 @@ def _run(
                         collector.update_policy_weights_()
                     if session.frames >= next_eval:
                         pending["eval_f_reduction"] = evaluate_f_reduction(session, eval_env)
+                        if session.updates > 0:
+                            pending["critic_probe"] = critic_probe(session, eval_env)
                         next_eval = _next_multiple(session.frames, experiment.eval_interval)
                     row, pending = pending, None
                     row["wall_s"] = round(time.perf_counter() - start, 3)

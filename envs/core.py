@@ -68,6 +68,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from envs.basestep import BaseModel, base_model
 from envs.geometry import (
     _gather_rows,
     _offset,
@@ -128,6 +129,9 @@ class PGOCore:
         place_separators: place the separator copies at each episode start (default: in the
             subtree mode only).
         base: ``"none"`` or ``"gauss-newton"``.
+        terminal_bonus: add the terminal ``log`` ratio on the episode's last step (the
+            paper's reward); without it the per-step rewards alone, which already telescope to
+            the episode's reduction, and which a critic can read off the state.
 
     The modes:
 
@@ -179,6 +183,7 @@ class PGOCore:
         action_scale: str = "metric",
         place_separators: bool | None = None,
         base: str = "none",
+        terminal_bonus: bool = True,
     ) -> None:
         for name, value, allowed in (
             ("correction", correction, CORRECTIONS),
@@ -195,7 +200,7 @@ class PGOCore:
         self.place = correction == "subtree" if place_separators is None else place_separators
         if base not in BASES:
             raise ValueRangeError("base", base, ", ".join(BASES))
-        self.base = base
+        self.base, self.terminal_bonus = base, terminal_bonus
         if reward not in REWARDS:
             raise ValueRangeError("reward", reward, ", ".join(REWARDS))
         if invalid_edge not in INVALID_EDGE_MODES:
@@ -219,6 +224,7 @@ class PGOCore:
         #: what the last step rewrote: vertices ``(B·n, V+1)`` and edge slots ``(B·n, E+1)``
         self.last_moved: torch.Tensor | None = None
         self.last_refreshed: torch.Tensor | None = None
+        self._base_model: BaseModel | None = None
 
     # -- episode start ---------------------------------------------------------------------------
 
@@ -289,6 +295,7 @@ class PGOCore:
             "remaining": t["num_edges"][index].clone(),
         }
         dynamic["initial_loss"] = dynamic["loss"].clone()
+        self._base_model = None
         for key, value in dynamic.items():
             if key not in t:
                 t[key] = torch.empty(
@@ -334,9 +341,7 @@ class PGOCore:
         head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            from envs.sweep import gauss_newton_delta
-
-            delta = delta + gauss_newton_delta(self, edge)
+            delta = delta + self.base_step(edge)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t["loss"].clone()
         if self.correction == "subtree":
@@ -354,6 +359,7 @@ class PGOCore:
             refreshed = torch.zeros(g, e + 1, dtype=torch.bool, device=self.device)
             refreshed.scatter_(1, incident, True)
         self.last_moved, self.last_refreshed = inside, refreshed
+        self._base_model = None
 
         processed = t["processed"].view(g, -1)
         processed.scatter_(1, flat_edge, True)
@@ -363,10 +369,25 @@ class PGOCore:
         reward = torch.tanh(gain).clamp(-1.0, 1.0)
         agent_done = t["remaining"] == 0
         done = agent_done.all(-1)
-        finishing = (done & ~was_done).unsqueeze(-1)
+        finishing = (done & ~was_done).unsqueeze(-1) & self.terminal_bonus
         bonus = torch.log((t["initial_loss"] + EPSILON) / (t["loss"] + EPSILON))
         reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
         return StepResult(reward, done, agent_done, repaired)
+
+    def base_model(self) -> BaseModel:
+        """The Gauss–Newton quadratic model of every edge slot at the current state
+        (:func:`envs.basestep.base_model`), computed once per state."""
+        if self._base_model is None:
+            self._base_model = base_model(self)
+        return self._base_model
+
+    def base_step(self, edge: torch.Tensor) -> torch.Tensor:
+        """``(B, n, 3)`` the Gauss–Newton step Δ_GN of each agent's ``edge (B, n)`` (0 off the
+        tree), in the action's units."""
+        g = self.batch * self.num_agents
+        flat_edge = edge.to(self.device, torch.int64).reshape(g, 1)
+        step = _gather_rows(self.base_model().step, flat_edge)
+        return step.view(self.batch, self.num_agents, 3)
 
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots

@@ -146,7 +146,5 @@ class Expert:
         base step when the core adds one (``base="gauss-newton"``); not clipped."""
         delta = self.delta(edge)
         if self.core.base == "gauss-newton":
-            from envs.sweep import gauss_newton_delta
-
-            delta = delta - gauss_newton_delta(self.core, edge)
+            delta = delta - self.core.base_step(edge)
         return delta.to(torch.float32)

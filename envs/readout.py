@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from envs.basestep import observed_model
 from envs.geometry import _gather_rows, node_features
 
 if TYPE_CHECKING:
@@ -26,7 +27,10 @@ def observe(core: PGOCore) -> dict[str, torch.Tensor]:
     * ``node_mask (V,)``; ``edge_index (2, E)`` int64 local (tail, head), 0 on padding;
     * ``edge_attr (E, 11)`` (:func:`envs.observation.edge_attributes`); ``edge_mask (E,)``;
     * ``processed (E,)``; ``residuals (E, 3)`` float32 current ``[r_t, r_θ]`` against the
-      measurements (0 on padding), as :func:`observed_residuals` gives them.
+      measurements (0 on padding), as :func:`observed_residuals` gives them;
+    * with the Gauss–Newton base step (``base="gauss-newton"``) also ``base_step (E, 3)``, the
+      step Δ_GN of every edge in action units, and ``base_model (E, 9)``, its quadratic model
+      relative to the local F (:func:`envs.basestep.observed_model`), float32.
     """
     t = core.tensors
     v, e = core.dims.vertices, core.dims.edges
@@ -37,7 +41,7 @@ def observe(core: PGOCore) -> dict[str, torch.Tensor]:
     else:
         frame = poses[:, :, :1]
     node_mask = t["node_mask"]
-    return {
+    observation = {
         "node_features": node_features(frame, poses, t["log_degree"], t["owned"], node_mask),
         "node_mask": node_mask,
         "edge_index": t["edge_index"],
@@ -45,6 +49,19 @@ def observe(core: PGOCore) -> dict[str, torch.Tensor]:
         "edge_mask": t["edge_mask"],
         "processed": t["processed"][..., :e].clone(),
         "residuals": observed_residuals(core).to(torch.float32),
+    }
+    if core.base == "gauss-newton":
+        observation.update(base_observation(core))
+    return observation
+
+
+def base_observation(core: PGOCore) -> dict[str, torch.Tensor]:
+    """``base_step (B, n, E, 3)`` and ``base_model (B, n, E, 9)`` of :func:`observe`."""
+    b, n, e = core.batch, core.num_agents, core.dims.edges
+    model = core.base_model()
+    return {
+        "base_step": model.step[:, :e].reshape(b, n, e, 3).to(torch.float32),
+        "base_model": observed_model(model)[:, :e].reshape(b, n, e, -1).to(torch.float32),
     }
 
 

@@ -37,6 +37,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from envs.basestep import MODEL_FEATURES
 from envs.core import DEFAULT_DELTA_MAX, PGOCore
 from envs.observation import EDGE_FEATURES, NODE_FEATURES, Dimensions
 from envs.sampler import ProblemSampler, ProblemSource
@@ -122,6 +123,9 @@ class PGOEnv(EnvBase):
             shape=(b, n),
             device=device,
         )
+        if self.core.base == "gauss-newton":
+            observation["base_step"] = real(e, 3)
+            observation["base_model"] = real(e, MODEL_FEATURES)
         agents = Composite(
             observation=observation, action_mask=flag(e + 1), shape=(b, n), device=device
         )

@@ -107,6 +107,27 @@ def spanning_tree(graph: PoseGraph) -> SpanningTree:
     return SpanningTree(parent, parent_edge, order, position, end, tree_edge, mover)
 
 
+def lowest_common_ancestors(tree: SpanningTree, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(M,)`` the lowest common ancestor of each pair ``(a, b)`` in ``tree``, −1 where the two
+    lie in different components (binary lifting, vectorised over the pairs)."""
+    n = tree.parent.size
+    up = np.where(tree.parent >= 0, tree.parent, np.arange(n))
+
+    def is_ancestor(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return (tree.position[u] <= tree.position[w]) & (tree.position[w] < tree.end[u])
+
+    table = [up]
+    for _ in range(max(int(n).bit_length(), 1)):
+        table.append(table[-1][table[-1]])
+    x = a.copy()
+    climbing = ~is_ancestor(a, b)
+    for jump in reversed(table):
+        step = climbing & ~is_ancestor(jump[x], b)
+        x = np.where(step, jump[x], x)
+    lca = np.where(climbing, up[x], a)
+    return np.where(is_ancestor(lca, b), lca, -1)
+
+
 def place_separators(
     problem: DistributedProblem, local_poses: Sequence[np.ndarray] | None = None
 ) -> list[np.ndarray]:
@@ -153,8 +174,9 @@ def pack_trees(problem: DistributedProblem, vertices: int, edges: int) -> dict[s
     ``tree_position``/``tree_end (n, V+1)``: pre-order position and subtree end of each vertex
     (a padding vertex or the trash vertex ``v`` gets ``[v, v + 1)``, outside every real range);
     ``tree_parent (n, V+1)`` (a root and the padding point at themselves); ``tree_edge (n, E+1)``
-    bool; ``mover (n, E+1)`` local id moved by a correction of each edge (trash ``V`` on padding
-    and on the no-op slot).
+    bool; ``mover (n, E+1)`` local id moved by a correction of each edge and ``lca (n, E+1)``
+    the lowest common ancestor of its endpoints (:mod:`envs.basestep`) (trash ``V`` on padding,
+    on the no-op slot and for an edge between two components).
     """
     n, v, e = problem.num_robots, vertices, edges
     slots = np.arange(v + 1)
@@ -164,6 +186,7 @@ def pack_trees(problem: DistributedProblem, vertices: int, edges: int) -> dict[s
         "tree_parent": np.tile(slots, (n, 1)),
         "tree_edge": np.zeros((n, e + 1), bool),
         "mover": np.full((n, e + 1), v, np.int64),
+        "lca": np.full((n, e + 1), v, np.int64),
     }
     for robot, local in enumerate(problem.local_graphs):  # one iteration per agent
         tree = spanning_tree(local.graph)
@@ -173,4 +196,6 @@ def pack_trees(problem: DistributedProblem, vertices: int, edges: int) -> dict[s
         pack["tree_parent"][robot, :nv] = np.where(tree.parent >= 0, tree.parent, np.arange(nv))
         pack["tree_edge"][robot, :ne] = tree.tree_edge
         pack["mover"][robot, :ne] = tree.mover
+        lca = lowest_common_ancestors(tree, local.graph.tails, local.graph.heads)
+        pack["lca"][robot, :ne] = np.where(lca >= 0, lca, v)
     return pack

@@ -1,0 +1,101 @@
+"""The Gauss–Newton base step of every candidate edge from subtree sums (envs.basestep) against
+forward differences of the whole local F, on random states, in every correction mode."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from envs.core import PGOCore
+from envs.geometry import _gather_rows, residuals
+from envs.observation import Dimensions
+from envs.tree import lowest_common_ancestors, spanning_tree
+from popbench.synthetic import make_problem
+
+SMALL = {"robots": 3, "poses_per_robot": 16}
+
+
+def local_f(core: PGOCore, poses: torch.Tensor) -> torch.Tensor:
+    """(G,) every agent's local F at ``poses (G, V+1, 3)``."""
+    t = core.tensors
+    g = poses.shape[0]
+    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    r = residuals(
+        _gather_rows(poses, tails), _gather_rows(poses, heads), t["measurements"].view(g, -1, 3)
+    )
+    weight = torch.stack([t["tau"].view(g, -1)] * 2 + [t["kappa"].view(g, -1)], -1)
+    return (weight * r * r).sum((-1, -2))
+
+
+def finite_difference_model(core: PGOCore, edge: int, step: float = 1e-5):
+    """(G, 3) the gradient of ½ F in the action Δ of slot ``edge`` by central differences of
+    the moved local F (the model is F ≈ F₀ + 2gᵀΔ + ΔᵀHΔ)."""
+    t = core.tensors
+    g = core.batch * core.num_agents
+    poses = t["poses"].view(g, -1, 3)
+    slots = torch.full((g, 1), edge)
+
+    def f(delta: torch.Tensor) -> torch.Tensor:
+        metric = core.metric_delta(slots, delta.expand(g, 1, 3).clone())
+        moved, _ = core.subtree_move(poses, slots, metric)
+        return local_f(core, moved)
+
+    eye = torch.eye(3, dtype=torch.float64) * step
+    gradient = torch.stack([(f(eye[k]) - f(-eye[k])) / (4 * step) for k in range(3)], -1)
+    return gradient
+
+
+@pytest.mark.parametrize(
+    "modes",
+    [
+        {"correction": "subtree"},
+        {"correction": "subtree", "action_scale": "whitened"},
+        {"correction": "pose", "action_scale": "whitened"},
+    ],
+)
+def test_base_gradient_matches_finite_differences(modes: dict) -> None:
+    problems = [make_problem(seed=seed, **SMALL) for seed in (3, 4)]
+    core = PGOCore(3, Dimensions.of(problems), 2, reward="F", **modes)
+    core.load(problems, range(2))
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(4):  # a few random moves so that residuals are not the start's
+        mask = core.action_mask()
+        edge = torch.where(mask, torch.rand(mask.shape, generator=generator), -1.0).argmax(-1)
+        core.step(edge, 0.5 * torch.randn(2, 3, 3, generator=generator, dtype=torch.float64))
+    model = core.base_model()
+    on_tree = core.tensors["tree_edge"].view(6, -1) if modes["correction"] == "subtree" else None
+    checked = 0
+    for edge in range(core.dims.edges):
+        real = core.tensors["edge_mask"].view(6, -1)[:, edge]
+        if on_tree is not None:
+            real = real & on_tree[:, edge]
+        if not bool(real.any()):
+            continue
+        expected = finite_difference_model(core, edge)
+        got = model.gradient[:, edge]
+        scale = float(expected[real].abs().max()) + 1e-3
+        assert torch.allclose(got[real], expected[real], atol=1e-6 * scale, rtol=1e-5)
+        checked += int(real.sum())
+    assert checked > 20
+    # Gauss–Newton: the step solves H Δ = −g and lowers the local F of every tree edge's agent
+    h, grad, step = model.hessian, model.gradient, model.step
+    assert torch.allclose((h @ step.unsqueeze(-1)).squeeze(-1), -grad, atol=1e-6 * grad.abs().max())
+
+
+def test_lowest_common_ancestors_against_parent_walks() -> None:
+    problem = make_problem(seed=9, **SMALL)
+    graph = problem.local_graphs[1].graph
+    tree = spanning_tree(graph)
+    rng = np.random.default_rng(0)
+    a, b = rng.integers(0, graph.num_poses, (2, 200))
+
+    def ancestors(v: int) -> list[int]:
+        path = [v]
+        while tree.parent[path[-1]] >= 0:
+            path.append(int(tree.parent[path[-1]]))
+        return path
+
+    pairs = zip(a, b, strict=True)
+    expected = [next(x for x in ancestors(i) if x in set(ancestors(j))) for i, j in pairs]
+    np.testing.assert_array_equal(lowest_common_ancestors(tree, a, b), expected)
