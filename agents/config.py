@@ -401,10 +401,13 @@ CPU_IMITATION_ROBUST = TrainConfig(
 # The fine-tuning: the local F as reward without the terminal bonus, normalised by the warm-up
 # rewards' spread (MSE critic), the start policy's own correction entropy as target, a critic
 # warm-up until its held-out TD error stops falling (at most 256 updates), and a KL anchor to the
-# imitation actor decaying over the 256 actor updates that 4,096 frames leave.
+# imitation actor decaying over the 256 actor updates that 4,096 frames leave. 40 imitation
+# episodes (β₀·0.8⁴⁰ ≈ 10⁻⁴: the learner's own states by the end) fit the 60-min budget per seed
+# with three seeds sharing the two cores.
 CPU_RESIDUAL = dataclasses.replace(
     CPU_IMITATION,
     model=dataclasses.replace(CPU_IMITATION.model, base_features=True),
+    imitation=dataclasses.replace(CPU_IMITATION.imitation, episodes=40),
     algorithm=dataclasses.replace(
         CPU_IMITATION.algorithm,
         reward="F",
