@@ -71,7 +71,9 @@ def bad_number(lines: Lines, rng: np.random.Generator) -> Lines:
 def huge_number(lines: Lines, rng: np.random.Generator) -> Lines:
     """A huge or tiny (finite) value in a pose, a measurement or an information entry."""
     prefix = "VERTEX" if rng.random() < 0.3 else "EDGE"
-    return _set_token(lines, rng, prefix, _choice(rng, HUGE_NUMBERS), first=prefix.count("E") + 1)
+    return _set_token(
+        lines, rng, prefix, _choice(rng, HUGE_NUMBERS), first=2 if prefix == "VERTEX" else 3
+    )
 
 
 def scale_information(lines: Lines, rng: np.random.Generator) -> Lines:
