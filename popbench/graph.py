@@ -11,7 +11,7 @@ from enum import IntEnum
 
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from popbench import se2
 
@@ -124,6 +124,16 @@ def robot_kinds(tails: np.ndarray, heads: np.ndarray, robots: np.ndarray) -> np.
     kinds = np.where(crossing & consecutive, EdgeKind.INTER_RELATIVE, kinds)
     kinds = np.where(crossing & ~consecutive, EdgeKind.INTER_LOOP, kinds)
     return kinds.astype(np.int8)
+
+
+def unconnected_vertices(num_poses: int, tails: np.ndarray, heads: np.ndarray) -> np.ndarray:
+    """Ids (ascending) of the vertices that no path of edges joins to vertex 0 (the gauge):
+    their poses are not determined by the measurements. Empty for a connected graph."""
+    adjacency = coo_matrix(
+        (np.ones(tails.size), (tails, heads)), shape=(num_poses, num_poses)
+    ).tocsr()
+    _, labels = connected_components(adjacency, directed=False)
+    return np.flatnonzero(labels != labels[0])
 
 
 def odometry_composition(

@@ -30,8 +30,14 @@ from typing import NamedTuple
 import numpy as np
 
 from popbench import se2
-from popbench.errors import DataFormatError
-from popbench.graph import PoseGraph, make_graph, odometry_composition
+from popbench.errors import DataFormatError, ValueRangeError
+from popbench.graph import (
+    EdgeKind,
+    PoseGraph,
+    make_graph,
+    odometry_composition,
+    unconnected_vertices,
+)
 
 _FORMATS = {
     # format: (vertex tag, edge tag)
@@ -266,7 +272,8 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     Raises:
         FileNotFoundError: no such file.
         DataFormatError: a malformed line (``file:line: reason``), an unknown tag, no edges,
-            non-contiguous vertex ids or an information matrix that is not positive definite.
+            non-contiguous vertex ids, an information matrix that is not positive definite, or
+            poses that no path of edges joins to vertex 0 (:func:`_check_connected`).
     """
     path = Path(path)
     fmt = detect_format(path)
@@ -277,8 +284,10 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     heads = lines.edges[:, 1].astype(np.int64)
     measurements = lines.edges[:, 2:5].copy()
     measurements[:, 2] = _wrap_out_of_range(measurements[:, 2])
-    information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow: refused just below
+        information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
     _check_information(path, information, lines.edge_lines)
+    _check_coordinates(path, lines)
 
     _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
     poses = _vertex_poses(path, lines) if lines.vertices.size else None
@@ -299,9 +308,41 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
             keep = ~loops
             tails, heads = tails[keep], heads[keep]
             measurements, information = measurements[keep], information[keep]
+    _check_connected(path, lines, num_poses, tails, heads, new_id)
     if poses is None:
         poses = odometry_composition(num_poses, tails, heads, measurements)
     return make_graph(poses, tails, heads, measurements, information, name=name or path.stem)
+
+
+def _check_connected(
+    path: Path,
+    lines: _Lines,
+    num_poses: int,
+    tails: np.ndarray,
+    heads: np.ndarray,
+    new_id: np.ndarray | None,
+) -> None:
+    """Every pose must be joined to vertex 0 by a path of edges (one gauge fixes the whole
+    graph; a pose in another component is undetermined and makes every solver's system
+    singular). The error names the first few unconnected poses by their ids in the file and the
+    line of the first one's VERTEX line (or of its first edge, without VERTEX lines)."""
+    unconnected = unconnected_vertices(num_poses, tails, heads)
+    if not unconnected.size:
+        return
+    if new_id is not None:  # back to the file's ids: each merged class's kept (smallest) id
+        unconnected = np.unique(new_id, return_index=True)[1][unconnected]
+    first = int(unconnected[0])
+    if lines.vertices.size:
+        line = lines.vertex_lines[np.flatnonzero(lines.vertices[:, 0] == first)[0]]
+    else:
+        line = lines.edge_lines[np.flatnonzero((lines.edges[:, :2] == first).any(axis=1))[0]]
+    shown = ", ".join(map(str, unconnected[:5].tolist())) + (", …" if unconnected.size > 5 else "")
+    raise DataFormatError(
+        path,
+        int(line),
+        f"{unconnected.size} of {num_poses} poses (ids {shown}) are not connected to vertex 0 "
+        "by any path of edges, so the graph has no single gauge: remove them or add edges",
+    )
 
 
 def read_vertices(path: str | Path) -> np.ndarray:
@@ -342,9 +383,43 @@ def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:
     return information
 
 
+# Magnitudes the solvers are known to handle (docs/solve.md, "Refused input"): beyond them a file is
+# refused at load with its line, not left to fail inside a factorisation.
+COORDINATE_LIMIT = 1e9  # |x|, |y| of a VERTEX line and |dx|, |dy| of an edge [m]
+INFORMATION_RANGE = (1e-100, 1e100)  # every eigenvalue of every information matrix
+INFORMATION_SPREAD = 1e15  # largest / smallest eigenvalue over the whole graph
+
+
+def _check_coordinates(path: Path, lines: _Lines) -> None:
+    """Every translation (VERTEX x, y; edge dx, dy) within ``±COORDINATE_LIMIT`` metres."""
+    for rows, columns, numbers, what in (
+        (lines.vertices, [1, 2], lines.vertex_lines, "pose coordinate"),
+        (lines.edges, [2, 3], lines.edge_lines, "measured translation"),
+    ):
+        bad = np.flatnonzero((np.abs(rows[:, columns]) > COORDINATE_LIMIT).any(axis=1))
+        if bad.size:
+            k = int(bad[0])
+            value = rows[k, columns][np.argmax(np.abs(rows[k, columns]))]
+            raise DataFormatError(
+                path,
+                int(numbers[k]),
+                f"{what} {value:.3g} m is out of range (allowed ±{COORDINATE_LIMIT:.0e} m)",
+            )
+
+
 def _check_information(path: Path, information: np.ndarray, lines: np.ndarray) -> None:
+    """Every information matrix positive definite with eigenvalues in
+    :data:`INFORMATION_RANGE`, and their spread over the graph (largest / smallest) at most
+    :data:`INFORMATION_SPREAD` (beyond it the weakest edges are below double-precision
+    round-off of the strongest in the normal equations, and factorisations fail)."""
+    overflow = np.flatnonzero(~np.isfinite(information).all(axis=(1, 2)))  # TORO's rotation
+    if overflow.size:
+        high = f"{INFORMATION_RANGE[1]:.0e}"
+        message = f"information matrix overflows (allowed eigenvalues up to {high})"
+        raise DataFormatError(path, lines[int(overflow[0])], message)
     eigenvalues = np.linalg.eigvalsh(information)
-    bad = np.flatnonzero(eigenvalues[:, 0] <= 0.0)
+    smallest, largest = eigenvalues[:, 0], eigenvalues[:, -1]
+    bad = np.flatnonzero(~(smallest > 0.0))  # ~(> 0): NaN fails too
     if bad.size:
         k = int(bad[0])
         raise DataFormatError(
@@ -353,6 +428,33 @@ def _check_information(path: Path, information: np.ndarray, lines: np.ndarray) -
             f"information matrix is not positive definite "
             f"(smallest eigenvalue {eigenvalues[k, 0]:.3g})",
         )
+    low, high = INFORMATION_RANGE
+    bad = np.flatnonzero(~((smallest >= low) & (largest <= high)))
+    if bad.size:
+        k = int(bad[0])
+        value = smallest[k] if not smallest[k] >= low else largest[k]
+        raise DataFormatError(
+            path,
+            lines[k],
+            f"information matrix eigenvalue {value:.3g} is out of range "
+            f"(allowed {low:.0e} to {high:.0e})",
+        )
+    weakest, strongest = int(np.argmin(smallest)), int(np.argmax(largest))
+    spread = largest[strongest] / smallest[weakest]
+    if spread > INFORMATION_SPREAD:
+        raise DataFormatError(
+            path,
+            lines[strongest],
+            f"information spans {spread:.3g} (eigenvalue {largest[strongest]:.3g} here, "
+            f"{smallest[weakest]:.3g} on line {lines[weakest]}); allowed at most "
+            f"{INFORMATION_SPREAD:.0e}: the weaker edges would be below round-off",
+        )
+
+
+def _savetxt(handle, rows: np.ndarray, fmt: list[str] | str, delimiter: str = " ") -> None:
+    """``np.savetxt`` of ``rows`` (nothing for zero rows: savetxt would write one empty line)."""
+    if rows.shape[0]:
+        np.savetxt(handle, rows, fmt=fmt, delimiter=delimiter)
 
 
 def write_g2o(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = None) -> None:
@@ -363,5 +465,108 @@ def write_g2o(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = Non
     vertex_block = np.column_stack([np.arange(graph.num_poses), poses])
     edge_block = np.column_stack([graph.tails, graph.heads, graph.measurements, upper])
     with Path(path).open("w") as handle:
-        np.savetxt(handle, vertex_block, fmt=["VERTEX_SE2 %d"] + ["%.17g"] * 3)
-        np.savetxt(handle, edge_block, fmt=["EDGE_SE2 %d", "%d"] + ["%.17g"] * 9)
+        _savetxt(handle, vertex_block, ["VERTEX_SE2 %d"] + ["%.17g"] * 3)
+        _savetxt(handle, edge_block, ["EDGE_SE2 %d", "%d"] + ["%.17g"] * 9)
+
+
+def write_toro(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = None) -> None:
+    """Write ``graph`` (with ``poses`` as the VERTEX2 lines, default the graph's) as TORO: the
+    information is rotated back into TORO's frame, ``Λ_TORO = B Λ_g2o Bᵀ`` with
+    ``B = blkdiag(R(θ̃), 1)`` (the inverse of the reader's conversion), so the file reads back to
+    the same graph up to rounding (≈ 1e-16 relative in Λ)."""
+    poses = graph.poses if poses is None else poses
+    b = np.zeros_like(graph.information)
+    b[:, :2, :2] = se2.rotation(graph.measurements[:, 2])
+    b[:, 2, 2] = 1.0
+    toro = b @ graph.information @ np.swapaxes(b, 1, 2)
+    rows, cols = zip(*_TORO_ENTRIES, strict=True)
+    entries = toro[:, list(rows), list(cols)]
+    vertex_block = np.column_stack([np.arange(graph.num_poses), poses])
+    edge_block = np.column_stack([graph.tails, graph.heads, graph.measurements, entries])
+    with Path(path).open("w") as handle:
+        _savetxt(handle, vertex_block, ["VERTEX2 %d"] + ["%.17g"] * 3)
+        _savetxt(handle, edge_block, ["EDGE2 %d", "%d"] + ["%.17g"] * 9)
+
+
+# Suffix of an output graph file → its writer (the reader detects the same suffixes).
+GRAPH_WRITERS = {".g2o": write_g2o, ".graph": write_toro}
+
+
+def write_solution(graph: PoseGraph, poses: np.ndarray, path: str | Path) -> None:
+    """Write ``graph`` with ``poses`` ``(N, 3)`` (a solution, rows in the graph's vertex order) as
+    its VERTEX lines: g2o for a ``.g2o`` path, TORO for ``.graph``. Edges are written as the
+    graph holds them (a file read by :func:`read_graph` written back reads to the same
+    measurements and information, so the file's ``F`` at its own VERTEX poses is the
+    solution's). A graph read from a TORO file with EQUIV lines is written merged (its
+    renumbered ids, no EQUIV lines; see docs/io.md).
+
+    Raises:
+        ValueRangeError: another suffix, or ``poses`` not ``(N, 3)``.
+    """
+    graph_writer(path)(graph, path, _checked_poses(graph, poses))
+
+
+def graph_writer(path: str | Path, name: str = "output graph file"):
+    """The writer of :data:`GRAPH_WRITERS` for ``path``'s suffix, or a ValueRangeError naming
+    ``name`` (the option) and the allowed suffixes."""
+    suffix = Path(path).suffix
+    if suffix not in GRAPH_WRITERS:
+        allowed = "a path ending in " + " or ".join(GRAPH_WRITERS) + " (g2o or TORO)"
+        raise ValueRangeError(name, str(path), allowed)
+    return GRAPH_WRITERS[suffix]
+
+
+def _checked_poses(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.shape != (graph.num_poses, 3):
+        raise ValueRangeError("poses", f"shape {poses.shape}", f"({graph.num_poses}, 3)")
+    return poses
+
+
+def write_tum(poses: np.ndarray, path: str | Path, ids: np.ndarray | None = None) -> None:
+    """Write ``poses`` ``(N, 3)`` ``(x [m], y [m], θ [rad])`` as a TUM trajectory (what ``evo``
+    reads): one line ``timestamp x y z qx qy qz qw`` per pose, the timestamp the vertex id
+    (``ids``, default ``0 … N−1``), ``z = 0`` and the unit quaternion of the yaw,
+    ``(0, 0, sin θ/2, cos θ/2)``."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+    ids = np.arange(poses.shape[0]) if ids is None else np.asarray(ids)
+    half = poses[:, 2] / 2.0
+    zeros = np.zeros(poses.shape[0])
+    rows = np.column_stack([ids, poses[:, :2], zeros, zeros, zeros, np.sin(half), np.cos(half)])
+    with Path(path).open("w") as handle:
+        handle.write("# timestamp(vertex id) x y z qx qy qz qw\n")
+        _savetxt(handle, rows, ["%d"] + ["%.17g"] * 7)
+
+
+FLAGS_HEADER = "edge,i,j,kind,weight,flagged"
+
+
+def write_flags(
+    graph: PoseGraph,
+    path: str | Path,
+    inlier_mask: np.ndarray | None,
+    weights: np.ndarray | None = None,
+) -> None:
+    """Write one CSV row per edge: ``edge`` (its index, the order of the file's edge lines),
+    ``i``, ``j`` (its vertex ids), ``kind`` (:class:`~popbench.graph.EdgeKind` name in lower
+    case, under the problem's robot assignment), ``weight`` (the method's final robust weight
+    in ``[0, 1]``) and ``flagged`` (1: flagged as an outlier, 0: kept). ``weights`` ``(M,)`` or
+    ``inlier_mask`` ``(M,)`` bool None (the method reports none): that column is left empty
+    (pandas reads NaN)."""
+    edges = np.arange(graph.num_edges)
+    kind_names = np.array([kind.name.lower() for kind in EdgeKind])[graph.kinds]
+    weight_text = (
+        np.full(edges.size, "")
+        if weights is None
+        else np.char.mod("%.17g", np.asarray(weights, dtype=np.float64))
+    )
+    flag_text = (
+        np.full(edges.size, "")
+        if inlier_mask is None
+        else np.where(np.asarray(inlier_mask, dtype=bool), "0", "1")
+    )
+    columns = [edges.astype(str), graph.tails.astype(str), graph.heads.astype(str), kind_names]
+    table = np.column_stack([*columns, weight_text, flag_text])
+    with Path(path).open("w") as handle:
+        handle.write(FLAGS_HEADER + "\n")
+        _savetxt(handle, table, "%s", delimiter=",")

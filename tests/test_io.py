@@ -178,6 +178,17 @@ def test_read_vertices_matches_read_graph(small_graph, tmp_path: Path) -> None:
         ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 2 0 0 0\n" + EDGE + "\n", 2, "no VERTEX line for id 1"),
         ("", 0, "no EDGE_SE2 lines"),
         ("# only a comment\n" + VERTICES, 0, "no EDGE_SE2 lines"),
+        # Value ranges (io.COORDINATE_LIMIT, INFORMATION_RANGE, INFORMATION_SPREAD): beyond
+        # them cc-pgo's Cholesky, LM's factor or the F sums failed (tests/test_fuzz.py).
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 -2e9 0\n" + EDGE + "\n", 2, "pose coordinate -2e+09"),
+        (VERTICES + EDGE.replace("1.0", "1e150") + "\n", 3, "translation 1e+150 m is out of"),
+        (VERTICES + EDGE.replace("10 0 0 10 0 10", "1e-120 0 0 1 0 1") + "\n", 3, "1e-120 is"),
+        (VERTICES + EDGE.replace("10 0 0 10 0 10", "1e200 0 0 1e200 0 1e200") + "\n", 3, "1e+200"),
+        (
+            VERTICES + EDGE + "\n" + EDGE.replace("10 0 0 10 0 10", "1e17 0 0 1 0 1") + "\n",
+            4,
+            "information spans 1e+17 (eigenvalue 1e+17 here, 1 on line 4); allowed at most 1e+15",
+        ),
     ],
 )
 def test_malformed_files_name_the_line(tmp_path: Path, text: str, line: int, phrase: str) -> None:
@@ -188,6 +199,14 @@ def test_malformed_files_name_the_line(tmp_path: Path, text: str, line: int, phr
     assert str(caught.value).startswith(f"{path}:{line}: ")
     assert phrase in str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def test_toro_information_that_overflows_is_refused(tmp_path: Path) -> None:
+    # Rotating 1e308 entries into the measurement frame overflows: refused, not NaN.
+    edge = "EDGE2 0 1 1 0 0.7 1e308 1e308 1e308 1 0 0"
+    path = write(tmp_path, f"VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\n{edge}\n", "t.graph")
+    with pytest.raises(DataFormatError, match=r"t\.graph:3: information matrix overflows"):
+        read_graph(path)
 
 
 def test_malformed_toro_line(tmp_path: Path) -> None:

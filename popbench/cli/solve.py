@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -133,10 +134,18 @@ def solve_record(
     seed: int = 0,
     options: dict[str, Any] | None = None,
     progress: SolveProgress | None = None,
+    output: str | Path | None = None,
+    trajectory: str | Path | None = None,
+    flags: str | Path | None = None,
 ) -> dict[str, Any]:
     """Solve one problem and summarise it as a JSON-ready dict (what ``popbench solve --json``
     prints). ``options`` are checked by :func:`check_method_options`; ``progress`` (optional)
-    is shown each stage and told of each round.
+    is shown each stage and told of each round. ``output``, ``trajectory`` and ``flags``, when
+    given, are written after the solve (:func:`write_outputs`); their paths are checked first.
+
+    ``outliers``: for a method that returns an inlier mask, the edges it flags, each
+    ``{"edge": index, "i": tail id, "j": head id}`` (the order and ids of the file's edge
+    lines); None for a method that flags nothing (no mask).
 
     The problem carries the ``init`` start (a name of :data:`popbench.initial.STARTS`) and the
     method starts from it. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since
@@ -152,6 +161,7 @@ def solve_record(
     if seconds is not None and not seconds > 0:
         raise ValueRangeError("--seconds", seconds, "a number > 0")
     check_method_options(method, options or {})
+    check_output_paths(output, trajectory, flags)
     budget = Budget(
         iterations=Budget.iterations if iterations is None else iterations,
         seconds=seconds,
@@ -198,7 +208,66 @@ def solve_record(
         for key, value in result.extras.items()
         if isinstance(value, int | float | bool | str) or getattr(value, "ndim", None) == 0
     }
+    record["outliers"] = flagged_edges(graph, result.inlier_mask)
+    write_outputs(graph, result, output, trajectory, flags)
     return record
+
+
+def flagged_edges(graph, inlier_mask) -> list[dict[str, int]] | None:
+    """The edges ``inlier_mask`` ``(M,)`` flags (False), as ``{"edge", "i", "j"}`` dicts in
+    edge order; None without a mask."""
+    import numpy as np
+
+    if inlier_mask is None:
+        return None
+    edges = np.flatnonzero(~np.asarray(inlier_mask, dtype=bool))
+    return [
+        {"edge": int(e), "i": int(i), "j": int(j)}
+        for e, i, j in zip(edges, graph.tails[edges], graph.heads[edges], strict=True)
+    ]
+
+
+OUTPUT_OPTIONS = {"output": "--output", "trajectory": "--trajectory", "flags": "--flags"}
+
+
+def check_output_paths(
+    output: str | Path | None, trajectory: str | Path | None, flags: str | Path | None
+) -> None:
+    """Before solving: ``output`` must end in ``.g2o`` or ``.graph``, and every given path must
+    be in an existing folder and not be a folder (ValueRangeError, exit status 2)."""
+    from popbench.io import graph_writer
+
+    paths = {"output": output, "trajectory": trajectory, "flags": flags}
+    for key, path in paths.items():
+        if path is None:
+            continue
+        path = Path(path)
+        if path.is_dir() or not path.resolve().parent.is_dir():
+            raise ValueRangeError(OUTPUT_OPTIONS[key], str(path), "a file in an existing folder")
+    if output is not None:
+        graph_writer(output, "--output")
+
+
+def write_outputs(
+    graph,
+    result,
+    output: str | Path | None = None,
+    trajectory: str | Path | None = None,
+    flags: str | Path | None = None,
+) -> None:
+    """Write a method's ``result`` on ``graph`` (the problem's global graph): the graph with the
+    solved poses to ``output`` (:func:`popbench.io.write_solution`), the TUM trajectory to
+    ``trajectory`` (:func:`popbench.io.write_tum`) and the per-edge CSV to ``flags``
+    (:func:`popbench.io.write_flags`, weights from ``result.extras["weights"]`` where the
+    method reports them: gnc, mm-pgo with a kernel)."""
+    from popbench.io import write_flags, write_solution, write_tum
+
+    if output is not None:
+        write_solution(graph, result.poses, output)
+    if trajectory is not None:
+        write_tum(result.poses, trajectory)
+    if flags is not None:
+        write_flags(graph, flags, result.inlier_mask, result.extras.get("weights"))
 
 
 def _print_summary(record: dict[str, Any]) -> None:
@@ -212,6 +281,8 @@ def _print_summary(record: dict[str, Any]) -> None:
         if value is None or value == {}:
             continue
         text = f"{value:.6g}" if isinstance(value, float) else str(value)
+        if key == "outliers":
+            text = f"{len(value)} edges flagged"
         table.add_row(key, text)
     Console().print(table)
 
@@ -221,6 +292,7 @@ EPILOG = (
     "  popbench solve intel --method lm --init chordal\n\n"
     "  popbench solve m3500 --robots 5 --partition metis --json\n\n"
     "  popbench solve path/to/graph.g2o --iterations 50 -o key=value\n\n"
+    "  popbench solve intel --method gnc --output out.g2o --trajectory out.tum --flags out.csv\n\n"
     "Objectives: F is paper eq. 1 with κ=Λθθ and τ=2/tr(Λtt⁻¹); F_chordal the SE-Sync "
     "chordal cost (no ½); chi2 g2o's EDGE_SE2 Σ eᵀΛe (no ½). See README.md."
 )
@@ -285,6 +357,33 @@ def solve_command(
     json_output: Annotated[
         bool, typer.Option("--json", help="Print exactly one JSON object on stdout.")
     ] = False,
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the graph with the solved poses as its VERTEX lines: g2o for a .g2o "
+            "path, TORO for .graph. Edges are written as read, so `popbench solve PATH --init "
+            "given` starts at the solution's F.",
+            show_default=False,
+        ),
+    ] = None,
+    trajectory: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the solved poses as a TUM trajectory (evo reads it): one line "
+            "'id x y z qx qy qz qw' per pose, the vertex id as timestamp, z = 0, the yaw's "
+            "quaternion.",
+            show_default=False,
+        ),
+    ] = None,
+    flags: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write a CSV, one row per edge: edge,i,j,kind,weight,flagged (weight: the "
+            "final robust weight, empty where the method reports none; flagged: 1 for an "
+            "edge the method flags as an outlier, empty where it flags nothing).",
+            show_default=False,
+        ),
+    ] = None,
     threads: CommandThreads = 1,
 ) -> None:
     """Solve one pose graph with one method and report F, F_chordal, chi2 and timings.
@@ -302,6 +401,9 @@ def solve_command(
         partition=partition,
         seed=seed,
         options=parse_method_options(option or []),
+        output=output,
+        trajectory=trajectory,
+        flags=flags,
     )
     live = SolveProgress(f"loading {source}…") if sys.stderr.isatty() else None
     from popbench.threads import limited_threads
