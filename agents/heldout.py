@@ -5,7 +5,13 @@ Every policy row runs one episode of the environment (envs.core.PGOCore, the pap
 each local edge once) from the same start, with the separator copies placed from their owned
 neighbours (envs.tree.place_separators; the no-op row is that placement alone). The non-learned
 rows act in :data:`POLICY_TASK`; the learned rows in the environment their checkpoint was
-trained with.
+trained with (:func:`learned_episode`).
+
+The learned rows, each adding one learned part to the one before (docs/training.md):
+``learned-order`` (the imitation actor's own edge choices, each executed with Δ := 0 on the
+Gauss–Newton base step: what the learned *order* adds to gn-sweep's root-outward one),
+``imitation`` (the same actor with its correction: what the learned Δ adds) and ``ga-sac`` (the
+GA-SAC fine-tuned actor of the same training run: what the fine-tuning adds).
 
 With an outlier rate (``spec["outlier_rate"]`` > 0) every row gets the same problem with
 outliers injected (popbench.outliers.with_outliers, the loop-closure candidates, seeded by the
@@ -23,13 +29,7 @@ import numpy as np
 import torch
 
 from agents.config import TRAJECTORY_TASK
-from agents.methods import (
-    CHECKPOINT_DIR,
-    DEFAULT_CHECKPOINT,
-    cached_actor,
-    flag_gate,
-    run_episode,
-)
+from agents.methods import CHECKPOINT_DIR, Episode, cached_actor, flag_gate, run_episode
 from agents.outlier_gate import candidate_auc
 from popbench import objective
 from popbench.datasets import file_sha256
@@ -40,9 +40,13 @@ from popbench.solvers.local_lm import local_optima
 from popbench.synthetic import make_problem
 
 IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7-robust.pt"
+# The GA-SAC fine-tuned actor of the run whose imitation phase is IMITATION_CHECKPOINT.
+GA_SAC_CHECKPOINT = CHECKPOINT_DIR / "actor-V2-n7-robust.pt"
 # The environment of the non-learned policy rows: the trajectory task without the base step
 # (each row's Δ is its own).
 POLICY_TASK = dataclasses.replace(TRAJECTORY_TASK, base="none")
+
+LEARNED_ROWS = ("learned-order", "imitation", "ga-sac")  # the rows that run a checkpoint
 
 Policy = Callable[[Any], tuple[torch.Tensor, torch.Tensor]]
 
@@ -51,11 +55,15 @@ def row_checkpoints(
     checkpoint: str | Path | None, imitation: str | Path | None = None
 ) -> dict[str, tuple[str, str] | None]:
     """``{row: (path, sha256)}`` of the learned rows (None where the file does not exist):
-    ``prop-v1`` = ``checkpoint`` (default: the committed actor), ``imitation`` = ``imitation``
-    (default: the committed imitation-only actor)."""
+    ``ga-sac`` = ``checkpoint`` (default: the committed GA-SAC fine-tuned actor,
+    :data:`GA_SAC_CHECKPOINT`), ``imitation`` = ``imitation`` (default: the committed
+    imitation-only actor) and ``learned-order`` = the same actor as ``imitation`` (its edge
+    order is the one measured)."""
+    imitation_path = Path(imitation or IMITATION_CHECKPOINT)
     paths = {
-        "prop-v1": Path(checkpoint or DEFAULT_CHECKPOINT),
-        "imitation": Path(imitation or IMITATION_CHECKPOINT),
+        "learned-order": imitation_path,
+        "imitation": imitation_path,
+        "ga-sac": Path(checkpoint or GA_SAC_CHECKPOINT),
     }
     return {
         row: (str(path), file_sha256(path)) if path.is_file() else None
@@ -121,8 +129,23 @@ def class_policy(kind: type) -> Callable[[Any], Policy]:
     return make
 
 
+def learned_episode(row: str, problem: DistributedProblem, checkpoint: str | Path) -> Episode:
+    """One deterministic episode of the actor in ``checkpoint`` (agents.methods.run_episode, in
+    the environment it was trained in) for the learned ``row``: ``learned-order`` runs it with
+    Δ := 0 in that environment with the Gauss–Newton base step (the base step alone on each edge
+    the actor chooses; the committed actors' own base), ``imitation`` / ``ga-sac`` as
+    prop-v1 runs it."""
+    actor, task = cached_actor(str(checkpoint), "cpu")
+    correction = row != "learned-order"
+    if not correction:
+        task = dataclasses.replace(task, base="gauss-newton")
+    with torch.no_grad():
+        return run_episode(actor, problem, task=task, correction=correction)
+
+
 def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any]) -> list:
-    """The robots' local copies that ``row`` hands to the consensus."""
+    """The robots' local copies that ``row`` hands to the consensus (a learned row runs the
+    actor of ``spec["checkpoint"]``)."""
     from envs.expert import Expert
     from envs.sweep import GaussNewtonSweep
     from envs.tree import place_separators
@@ -137,6 +160,8 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
         return episode(problem, class_policy(GaussNewtonSweep))
     if row == "expert":
         return episode(problem, class_policy(Expert))
+    if row in LEARNED_ROWS:
+        return learned_episode(row, problem, spec["checkpoint"]).local_poses
     if row == "local-lm":
         return local_optima(problem)[0]
     if row == "ground-truth":
@@ -182,17 +207,16 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
     if spec["row"] == "initial":
         f = objective.objective(graph, graph.poses)
         return {"F": f, "ATE": ate(graph.poses, graph.ground_truth), "F_local": f}
-    learned = spec["row"] in ("prop-v1", "imitation")
+    learned = spec["row"] in LEARNED_ROWS
     if learned:
-        actor, task = cached_actor(spec["checkpoint"], "cpu")
-        with torch.no_grad():
-            run = run_episode(actor, problem, task=task)
+        run = learned_episode(spec["row"], problem, spec["checkpoint"])
         local = run.local_poses
     else:
         local = local_estimates(spec["row"], problem, spec)
     reconciled = reconcile(problem, local, spec["consensus"])
     scores: dict[str, float] = {}
     if learned and rate > 0:  # the gate prop-v1 flags from (agents.methods.flag_gate)
+        task = cached_actor(spec["checkpoint"], "cpu")[1]
         scores = gate_scores(
             problem, *flag_gate(problem, run, reconciled.poses, spec["checkpoint"], task)
         )

@@ -127,11 +127,13 @@ def run_episode(
     max_steps: int | None = None,
     on_step: Callable[[int], None] | None = None,
     task: TaskConfig = PAPER_TASK,
+    correction: bool = True,
 ) -> Episode:
     """Run the actor for one episode on every robot's local graph (module docstring, step 1);
     `seconds` / `max_steps` cut it short (benchmarks); `on_step`, if given, is told the number
     of steps done after each step (progress display); `task` is the environment the actor was
-    trained in (its checkpoint's)."""
+    trained in (its checkpoint's); `correction=False` executes Δ := 0 on the actor's edge (in a
+    `base="gauss-newton"` task: the base step alone; the actor's memory still reads its own Δ)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
     from envs.readout import base_observation
@@ -171,6 +173,7 @@ def run_episode(
         if actor.config.base_features:
             base = tuple(value[0] for value in base_observation(core).values())
         edge, delta = policy.act(core.action_mask()[0], base)
+        delta = delta if correction else torch.zeros_like(delta)
         core.step(edge.view(1, n), delta.view(1, n, 3))
         policy.observe_update(*core.observation_update())
         step_s.append(time.perf_counter() - tick)

@@ -251,7 +251,7 @@ RAY = "(pip install 'popbench[ray]')"  # rich markup must not eat the "[ray]"
         (("run", "table1"), ("popbench run table1 --quick", "--fresh", "OUT/cells", RAY)),
         (("run", "outliers"), ("popbench run outliers --rate", "--fresh", "OUT/cells", RAY)),
         (("run", "scalability"), ("popbench run scalability", "--fresh", "OUT/cells", RAY)),
-        (("run", "heldout"), ("popbench run heldout --rows no-op,prop-v1", "--json", RAY)),
+        (("run", "heldout"), ("popbench run heldout --rows no-op,ga-sac", "--json", RAY)),
         (
             ("plot", "trajectories"),
             ("popbench plot trajectories intel", "results/figures/trajectories_DATASET"),
@@ -304,6 +304,7 @@ def test_heldout_bad_values_are_one_line(tmp_path, capsys):
     for option, value, phrase in (
         ("--noise", "V4", "invalid --noise 'V4'"),
         ("--rows", "oracle", "invalid --rows 'oracle'"),
+        ("--rows", "prop-v1,oracle", "invalid --rows 'oracle'"),
         ("--consensus", "gossip", "invalid --consensus 'gossip'"),
         ("--checkpoint", str(tmp_path / "none.pt"), "invalid --checkpoint"),
     ):

@@ -219,10 +219,11 @@ HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
 @experiment(
     "heldout",
     "popbench run heldout                               # V2, n = 7, 100 problems, every row",
-    "popbench run heldout --rows no-op,prop-v1,local-lm --checkpoint runs/a/actor.pt",
+    "popbench run heldout --rows no-op,ga-sac,local-lm --checkpoint runs/a/actor.pt",
+    "popbench run heldout --problems 30 --rows gn-sweep,learned-order,imitation,ga-sac,local-lm",
     "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus admm",
     "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
-    "popbench run heldout --problems 30 --rows no-op,prop-v1 --outlier-rate 0.1",
+    "popbench run heldout --problems 30 --rows no-op,ga-sac --outlier-rate 0.1",
 )
 def heldout_command(
     *,
@@ -238,17 +239,20 @@ def heldout_command(
         None,
         help="Rows (comma list, computed in the table's order; default: every row, a learned "
         "row left out when its checkpoint is missing): initial, no-op, random, greedy, "
-        "gn-sweep, expert, imitation, prop-v1, local-lm, ground-truth.",
+        "expert, gn-sweep, learned-order, imitation, ga-sac, local-lm, ground-truth "
+        "(prop-v1: the former name of ga-sac).",
         show_default=False,
     ),
     checkpoint: Path = typer.Option(
         None,
-        help="The prop-v1 row's actor (default: prop-v1's own, agents/checkpoints/README.md).",
+        help="The ga-sac row's actor (default: the committed GA-SAC fine-tuned "
+        "actor-V2-n7-robust.pt, agents/checkpoints/README.md).",
         show_default=False,
     ),
     imitation_checkpoint: Path = typer.Option(
         None,
-        help="The imitation row's actor (default: the committed imitation-V2-n7-robust.pt).",
+        help="The actor of the imitation and learned-order rows (default: the committed "
+        "imitation-V2-n7-robust.pt).",
         show_default=False,
     ),
     consensus: str | None = typer.Option(
@@ -275,11 +279,19 @@ def heldout_command(
     Every row is an estimate of the same problem brought through the same consensus, so the
     rows differ only in what was done to the local graphs before it (nothing, a baseline
     policy, the expert, the learned actors, the local optima, the ground truth). Writes
-    OUT/heldout.csv (one line per problem and row), summary.csv (mean and median F and ATE
-    with bootstrap 95 % CIs, the share of the no-op → local-lm gap each row closes),
-    heldout.md, heldout.png/.pdf and manifest.json.
+    OUT/heldout.csv (one line per problem and row), summary.csv (mean and median F, local F
+    and ATE with bootstrap 95 % CIs, the share of the no-op → local-lm gap each row closes),
+    paired.csv (learned-order − gn-sweep, imitation − learned-order, ga-sac − imitation
+    problem by problem, with 95 % CIs), heldout.md, heldout.png/.pdf and manifest.json.
     """
-    from popbench.harness.heldout import ROWS, HeldoutConfig, run_heldout, summary_json
+    from popbench.harness.heldout import (
+        ROW_ALIASES,
+        ROWS,
+        HeldoutConfig,
+        canonical_rows,
+        run_heldout,
+        summary_json,
+    )
     from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS
 
     for path, what in (
@@ -293,7 +305,9 @@ def heldout_command(
         robots=options.integers(robots, "--robots"),
         problems=problems,
         poses_per_robot=poses_per_robot,
-        rows=ROWS if rows is None else options.names(rows, ROWS, "--rows"),
+        rows=ROWS
+        if rows is None
+        else canonical_rows(options.names(rows, ROWS + tuple(ROW_ALIASES), "--rows")),
         consensus=options.names(consensus or DEFAULT_CONSENSUS, CONSENSUS_MODES, "--consensus")[0],
         checkpoint=checkpoint,
         imitation_checkpoint=imitation_checkpoint,
@@ -304,5 +318,5 @@ def heldout_command(
     if json_output:
         typer.echo(summary_json(table))
     else:
-        files = "heldout.csv, summary.csv, heldout.md, heldout.png, heldout.pdf"
+        files = "heldout.csv, summary.csv, paired.csv, heldout.md, heldout.png, heldout.pdf"
         wrote(len(table), "rows", config.out, files)

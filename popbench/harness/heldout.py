@@ -2,9 +2,12 @@
 
 Every row is an estimate of the same problem brought through the same consensus
 (:mod:`popbench.reconcile`), so the rows differ only in what was done to the robots' local
-graphs before it: nothing (``no-op``), a random, greedy or Gauss–Newton policy, the expert, the
-learned actors, every local graph at its own optimum (``local-lm``), or the ground truth.
-``initial`` is the start itself, without a consensus.
+graphs before it: nothing (``no-op``), a random or greedy policy, the expert, the Gauss–Newton
+sweep, the learned actors, every local graph at its own optimum (``local-lm``), or the ground
+truth. ``initial`` is the start itself, without a consensus. The rows from ``gn-sweep`` to
+``local-lm`` add one learned part each (agents.heldout: the learned edge order, the learned
+correction, the GA-SAC fine-tuning), and :func:`paired` compares consecutive ones problem by
+problem (:data:`PAIRS`).
 
 Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
 (``envs.sampler.ProblemSampler``) draw 32-bit seeds, all below the base, so the two never meet.
@@ -35,14 +38,19 @@ ROWS = (
     "no-op",
     "random",
     "greedy",
-    "gn-sweep",
     "expert",
+    "gn-sweep",
+    "learned-order",
     "imitation",
-    "prop-v1",
+    "ga-sac",
     "local-lm",
     "ground-truth",
 )
-LEARNED_ROWS = ("imitation", "prop-v1")
+# Former row names, still accepted (--rows) and read (committed heldout.csv files).
+ROW_ALIASES = {"prop-v1": "ga-sac"}
+# The paired comparisons (row A, row B) of paired.csv: what each learned part adds.
+PAIRS = (("learned-order", "gn-sweep"), ("imitation", "learned-order"), ("ga-sac", "imitation"))
+PAIRED_METRICS = ("F_local", "F", "ATE")
 # The function that computes one row of one problem: (spec) -> {"F", "ATE", "F_local"}.
 ROW_FUNCTION = "agents.heldout:evaluate_row"
 CHECKPOINTS_FUNCTION = "agents.heldout:row_checkpoints"
@@ -60,8 +68,9 @@ class HeldoutConfig:
         rows: the rows to compute (a subset of :data:`ROWS`, in that order).
         consensus: the consensus every row goes through (one of
             :data:`popbench.reconcile.CONSENSUS_MODES`).
-        checkpoint: the actor of the ``prop-v1`` row (None: the committed default).
-        imitation_checkpoint: the actor of the ``imitation`` row (None: the committed one).
+        checkpoint: the actor of the ``ga-sac`` row (None: the committed fine-tuned one).
+        imitation_checkpoint: the actor of the ``imitation`` and ``learned-order`` rows (None:
+            the committed one).
         out: output folder.
         outlier_rate: outliers injected into every held-out problem (popbench.outliers, the
             loop-closure candidates; 0 = none, the cells of before); with it the learned rows
@@ -80,6 +89,11 @@ class HeldoutConfig:
     outlier_rate: float = 0.0
 
 
+def canonical_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
+    """``rows`` with former names (:data:`ROW_ALIASES`) replaced, each once, in their order."""
+    return tuple(dict.fromkeys(ROW_ALIASES.get(row, row) for row in rows))
+
+
 def cell_specs(config: HeldoutConfig) -> list[Spec]:
     """One specification per (noise, robots, problem, row), with the code and, for the learned
     rows, the checkpoint's sha256 it is computed from. A learned row whose checkpoint does not
@@ -90,7 +104,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
     for noise in config.noise:
         for robots in config.robots:
             for k in range(config.problems):
-                for row in config.rows:
+                for row in canonical_rows(config.rows):
                     spec: dict[str, Any] = {
                         "experiment": "heldout",
                         "code": code,
@@ -103,7 +117,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                     }
                     if config.outlier_rate > 0:  # absent otherwise: earlier cells stay valid
                         spec["outlier_rate"] = config.outlier_rate
-                    if row in LEARNED_ROWS:
+                    if row in checkpoints:
                         if checkpoints[row] is None:
                             continue
                         spec["checkpoint"], spec["checkpoint_sha256"] = checkpoints[row]
@@ -126,19 +140,22 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
 
 
 def summary(frame: pd.DataFrame) -> pd.DataFrame:
-    """Per (noise, robots, row): mean and median F and ATE with bootstrap 95 % CIs, and the
-    ratio of the row's median F to the no-op's; ``closed_F`` / ``closed_ATE`` give the share of
-    the no-op → local-lm gap the row closes in median F and in mean ATE. With outliers (the
+    """Per (noise, robots, row) of the per-problem ``frame`` (heldout.csv; former row names
+    read as today's): mean and median F, ATE and local F (``F_local``, the robots' local copies
+    before the consensus) with bootstrap 95 % CIs, and the ratio of the row's median F to the
+    no-op's; ``closed_F`` / ``closed_ATE`` give the share of the no-op → local-lm gap the row
+    closes in median F and in mean ATE. With outliers (the
     cells have ``gate_auc``), the learned rows add ``gate_auc`` (mean over the problems with an
     outlier, and its CI) and ``gate_precision`` / ``gate_recall`` (pooled over the problems'
     candidate edges: hits / flagged, hits / injected)."""
+    frame = frame.assign(row=frame["row"].replace(ROW_ALIASES))
     records = []
     for (noise, robots), group in frame.groupby(["noise", "robots"], sort=False):
         medians = group.groupby("row")["F"].median()
         ate_means = group.groupby("row")["ATE"].mean()
         for row in [r for r in ROWS if r in set(group["row"])]:
             values = group[group["row"] == row]
-            f, ate = values["F"].to_numpy(), values["ATE"].to_numpy()
+            f, ate, local = (values[k].to_numpy() for k in ("F", "ATE", "F_local"))
             record = {
                 "noise": noise,
                 "robots": robots,
@@ -151,6 +168,10 @@ def summary(frame: pd.DataFrame) -> pd.DataFrame:
                 "ATE_mean": float(ate.mean()),
                 "ATE_mean_ci": bootstrap_ci(ate, np.mean),
                 "ATE_median": float(np.median(ate)),
+                "F_local_mean": float(local.mean()),
+                "F_local_mean_ci": bootstrap_ci(local, np.mean),
+                "F_local_median": float(np.median(local)),
+                "F_local_median_ci": bootstrap_ci(local, np.median),
                 "median_ratio_to_noop": _ratio(medians, row, "no-op"),
                 "closed_F": _closed(medians, row),
                 "closed_ATE": _closed(ate_means, row),
@@ -158,6 +179,42 @@ def summary(frame: pd.DataFrame) -> pd.DataFrame:
             if "gate_auc" in values and values["gate_auc"].notna().any():
                 record.update(_gate_summary(values))
             records.append(record)
+    return pd.DataFrame(records)
+
+
+def paired(frame: pd.DataFrame, pairs: tuple[tuple[str, str], ...] = PAIRS) -> pd.DataFrame:
+    """Row A − row B problem by problem, per (noise, robots), pair of :data:`PAIRS` whose two
+    rows ``frame`` has (former row names read as today's) and metric of
+    :data:`PAIRED_METRICS`: over the K problems both rows have, ``diff_mean`` and
+    ``diff_median`` of the differences d_k = A_k − B_k with bootstrap 95 % CIs (paired: one
+    resample draws whole problems) and ``A_lower``, the share of problems with d_k < 0
+    (negative differences favour A in every metric)."""
+    frame = frame.assign(row=frame["row"].replace(ROW_ALIASES))
+    records = []
+    for (noise, robots), group in frame.groupby(["noise", "robots"], sort=False):
+        wide = group.pivot_table(index="problem_seed", columns="row", values=list(PAIRED_METRICS))
+        for a, b in pairs:
+            if a not in set(group["row"]) or b not in set(group["row"]):
+                continue
+            for metric in PAIRED_METRICS:
+                d = (wide[metric][a] - wide[metric][b]).dropna().to_numpy()
+                if d.size == 0:
+                    continue
+                records.append(
+                    {
+                        "noise": noise,
+                        "robots": robots,
+                        "A": a,
+                        "B": b,
+                        "metric": metric,
+                        "problems": d.size,
+                        "diff_mean": float(d.mean()),
+                        "diff_mean_ci": bootstrap_ci(d, np.mean),
+                        "diff_median": float(np.median(d)),
+                        "diff_median_ci": bootstrap_ci(d, np.median),
+                        "A_lower": float((d < 0).mean()),
+                    }
+                )
     return pd.DataFrame(records)
 
 
@@ -188,28 +245,35 @@ def _closed(values: pd.Series, row: str) -> float:
     return float((values["no-op"] - values[row]) / gap) if gap > 0 else float("nan")
 
 
-def markdown(table: pd.DataFrame) -> str:
-    """The summary as a markdown table per (noise, robots)."""
+def markdown(table: pd.DataFrame, pairs: pd.DataFrame | None = None) -> str:
+    """The summary (and the paired differences ``pairs``, :func:`paired`, if given) as markdown
+    tables per (noise, robots)."""
     lines = []
     for (noise, robots), group in table.groupby(["noise", "robots"], sort=False):
         count = int(group["problems"].max())
         lines += [
             f"### {noise}, n = {robots} ({count} held-out problems, 95 % bootstrap CIs)",
             "",
-            "| row | F mean | F median [95 % CI] | ATE mean [m] [95 % CI] | median F / no-op "
-            "| gap closed (F, ATE) |",
-            "|---|---:|---:|---:|---:|---:|",
+            "| row | F mean | F median [95 % CI] | local F median [95 % CI] "
+            "| ATE mean [m] [95 % CI] | median F / no-op | gap closed (F, ATE) |",
+            "|---|---:|---:|---:|---:|---:|---:|",
         ]
         gated = group[group["gate_auc"].notna()] if "gate_auc" in group else group.iloc[:0]
         for record in group.itertuples():
             lines.append(
                 f"| {record.row} | {record.F_mean:.4g} | {record.F_median:.4g} "
                 f"[{record.F_median_ci[0]:.4g}, {record.F_median_ci[1]:.4g}] "
+                f"| {record.F_local_median:.4g} [{record.F_local_median_ci[0]:.4g}, "
+                f"{record.F_local_median_ci[1]:.4g}] "
                 f"| {record.ATE_mean:.3f} [{record.ATE_mean_ci[0]:.3f}, "
                 f"{record.ATE_mean_ci[1]:.3f}] | {record.median_ratio_to_noop:.3f} "
                 f"| {record.closed_F:.2f}, {record.closed_ATE:.2f} |"
             )
         lines.append("")
+        if pairs is not None and len(pairs):
+            lines += _paired_markdown(
+                pairs[(pairs["noise"] == noise) & (pairs["robots"] == robots)]
+            )
         if len(gated):
             lines += [
                 "Gate as an outlier classifier (loop closures; flagged: gate ≤ 0.5):",
@@ -225,6 +289,29 @@ def markdown(table: pd.DataFrame) -> str:
                 )
             lines.append("")
     return "\n".join(lines)
+
+
+def _paired_markdown(pairs: pd.DataFrame) -> list[str]:
+    """The markdown lines of one (noise, robots) group's paired differences."""
+    if not len(pairs):
+        return []
+    lines = [
+        "Paired differences A − B over the same problems (negative favours A; 95 % bootstrap "
+        "CIs over problems):",
+        "",
+        "| A − B | metric | problems | median of A − B [95 % CI] | mean of A − B [95 % CI] "
+        "| A lower |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for record in pairs.itertuples():
+        lines.append(
+            f"| {record.A} − {record.B} | {record.metric} | {record.problems} "
+            f"| {record.diff_median:.4g} [{record.diff_median_ci[0]:.4g}, "
+            f"{record.diff_median_ci[1]:.4g}] | {record.diff_mean:.4g} "
+            f"[{record.diff_mean_ci[0]:.4g}, {record.diff_mean_ci[1]:.4g}] "
+            f"| {record.A_lower:.2f} |"
+        )
+    return [*lines, ""]
 
 
 def figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
@@ -246,19 +333,28 @@ def figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
 
 
 def summary_json(table: pd.DataFrame) -> str:
-    """The summary as one JSON object ``{"rows": [...]}`` (CIs as ``[lo, hi]``)."""
-    records = json.loads(table.to_json(orient="records"))
-    return json.dumps({"rows": records})
+    """The summary as one JSON object ``{"rows": [...], "paired": [...]}`` (CIs as
+    ``[lo, hi]``; ``paired``: :func:`paired`'s records, which :func:`write_heldout` keeps in
+    ``table.attrs["paired"]``; empty without them)."""
+    pairs = table.attrs.get("paired")
+    records = {
+        "rows": table,
+        "paired": pd.DataFrame() if pairs is None else pairs,
+    }
+    return json.dumps(
+        {key: json.loads(value.to_json(orient="records")) for key, value in records.items()}
+    )
 
 
 def run_heldout(config: HeldoutConfig, run: Run | None = None) -> pd.DataFrame:
     """Compute (or reuse) every cell as ``run`` says (default: serially in this process;
     :func:`popbench.harness.runner.run_experiment`), then write ``heldout.csv`` (one line per
-    problem and row), ``summary.csv``, ``heldout.md``, ``heldout.png``/``.pdf`` and
-    ``manifest.json`` into ``config.out``; returns the summary."""
+    problem and row), ``summary.csv``, ``paired.csv`` (:func:`paired`), ``heldout.md``,
+    ``heldout.png``/``.pdf`` and ``manifest.json`` into ``config.out``; returns the summary
+    (with the paired differences in ``attrs["paired"]``)."""
 
     def cells() -> list[Spec]:
-        unknown = sorted(set(config.rows) - set(ROWS))
+        unknown = sorted(set(canonical_rows(config.rows)) - set(ROWS))
         if unknown:
             from popbench.errors import ValueRangeError
 
@@ -270,12 +366,14 @@ def run_heldout(config: HeldoutConfig, run: Run | None = None) -> pd.DataFrame:
 
 
 def write_heldout(config: HeldoutConfig, rows: list[Row]) -> pd.DataFrame:
-    """The per-problem table of ``rows``, its summary (returned) and figure, written into
-    ``config.out``."""
+    """The per-problem table of ``rows``, its summary (returned, the paired differences in its
+    ``attrs["paired"]``) and figure, written into ``config.out``."""
     frame = pd.DataFrame(rows)
-    table = summary(frame)
+    table, pairs = summary(frame), paired(frame)
+    table.attrs["paired"] = pairs
     frame.to_csv(config.out / "heldout.csv", index=False, float_format="%.10g")
     table.to_csv(config.out / "summary.csv", index=False, float_format="%.10g")
-    (config.out / "heldout.md").write_text(markdown(table))
+    pairs.to_csv(config.out / "paired.csv", index=False, float_format="%.10g")
+    (config.out / "heldout.md").write_text(markdown(table, pairs))
     figure(frame, config.out / "heldout")
     return table
