@@ -191,9 +191,21 @@ def gate_scores(
     }
 
 
+def robots_local_f(problem: DistributedProblem, local_poses: list) -> float:
+    """Σ_i F_i: each robot's own local objective (its local graph, edges with an owned endpoint)
+    at its own copy ``local_poses[i]`` — what the episode lowers, free of the robots' gauges."""
+    return float(
+        sum(
+            objective.objective(local.graph, np.asarray(poses))
+            for local, poses in zip(problem.local_graphs, local_poses, strict=True)
+        )
+    )
+
+
 def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
-    """F and ATE of one row on one held-out problem, and ``F_local``: F of the assembled local
-    copies handed to the consensus (the start itself for ``initial``); with an outlier rate,
+    """F and ATE of one row on one held-out problem, ``F_local``: F of the assembled local
+    copies handed to the consensus (the start itself for ``initial``), and ``F_robots``: the
+    robots' own local F before the consensus (:func:`robots_local_f`); with an outlier rate,
     the learned rows add :func:`gate_scores`."""
     problem = make_problem(
         spec["robots"], spec["noise"], spec["poses_per_robot"], seed=spec["problem_seed"]
@@ -206,7 +218,13 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
     graph = problem.graph
     if spec["row"] == "initial":
         f = objective.objective(graph, graph.poses)
-        return {"F": f, "ATE": ate(graph.poses, graph.ground_truth), "F_local": f}
+        robots = robots_local_f(problem, problem.split())
+        return {
+            "F": f,
+            "ATE": ate(graph.poses, graph.ground_truth),
+            "F_local": f,
+            "F_robots": robots,
+        }
     learned = spec["row"] in LEARNED_ROWS
     if learned:
         run = learned_episode(spec["row"], problem, spec["checkpoint"])
@@ -224,5 +242,6 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
         "F": objective.objective(graph, reconciled.poses),
         "ATE": ate(reconciled.poses, graph.ground_truth),
         "F_local": reconciled.F_before,
+        "F_robots": robots_local_f(problem, local),
         **scores,
     }

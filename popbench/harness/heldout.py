@@ -50,7 +50,7 @@ ROWS = (
 ROW_ALIASES = {"prop-v1": "ga-sac"}
 # The paired comparisons (row A, row B) of paired.csv: what each learned part adds.
 PAIRS = (("learned-order", "gn-sweep"), ("imitation", "learned-order"), ("ga-sac", "imitation"))
-PAIRED_METRICS = ("F_local", "F", "ATE")
+PAIRED_METRICS = ("F_robots", "F_local", "F", "ATE")
 # The function that computes one row of one problem: (spec) -> {"F", "ATE", "F_local"}.
 ROW_FUNCTION = "agents.heldout:evaluate_row"
 CHECKPOINTS_FUNCTION = "agents.heldout:row_checkpoints"
@@ -141,8 +141,9 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
 
 def summary(frame: pd.DataFrame) -> pd.DataFrame:
     """Per (noise, robots, row) of the per-problem ``frame`` (heldout.csv; former row names
-    read as today's): mean and median F, ATE and local F (``F_local``, the robots' local copies
-    before the consensus) with bootstrap 95 % CIs, and the ratio of the row's median F to the
+    read as today's): mean and median F, ATE, local F (``F_local``, the robots' local copies
+    assembled before the consensus) and the robots' own local F (``F_robots``, NaN in files
+    written before it) with bootstrap 95 % CIs, and the ratio of the row's median F to the
     no-op's; ``closed_F`` / ``closed_ATE`` give the share of the no-op → local-lm gap the row
     closes in median F and in mean ATE. With outliers (the
     cells have ``gate_auc``), the learned rows add ``gate_auc`` (mean over the problems with an
@@ -156,6 +157,7 @@ def summary(frame: pd.DataFrame) -> pd.DataFrame:
         for row in [r for r in ROWS if r in set(group["row"])]:
             values = group[group["row"] == row]
             f, ate, local = (values[k].to_numpy() for k in ("F", "ATE", "F_local"))
+            robots_f = values.get("F_robots", pd.Series(np.nan, index=values.index)).to_numpy()
             record = {
                 "noise": noise,
                 "robots": robots,
@@ -172,6 +174,8 @@ def summary(frame: pd.DataFrame) -> pd.DataFrame:
                 "F_local_mean_ci": bootstrap_ci(local, np.mean),
                 "F_local_median": float(np.median(local)),
                 "F_local_median_ci": bootstrap_ci(local, np.median),
+                "F_robots_median": float(np.median(robots_f)),
+                "F_robots_median_ci": bootstrap_ci(robots_f, np.median),
                 "median_ratio_to_noop": _ratio(medians, row, "no-op"),
                 "closed_F": _closed(medians, row),
                 "closed_ATE": _closed(ate_means, row),
@@ -192,11 +196,12 @@ def paired(frame: pd.DataFrame, pairs: tuple[tuple[str, str], ...] = PAIRS) -> p
     frame = frame.assign(row=frame["row"].replace(ROW_ALIASES))
     records = []
     for (noise, robots), group in frame.groupby(["noise", "robots"], sort=False):
-        wide = group.pivot_table(index="problem_seed", columns="row", values=list(PAIRED_METRICS))
+        metrics = [metric for metric in PAIRED_METRICS if metric in group]
+        wide = group.pivot_table(index="problem_seed", columns="row", values=metrics)
         for a, b in pairs:
             if a not in set(group["row"]) or b not in set(group["row"]):
                 continue
-            for metric in PAIRED_METRICS:
+            for metric in metrics:
                 d = (wide[metric][a] - wide[metric][b]).dropna().to_numpy()
                 if d.size == 0:
                     continue
@@ -254,7 +259,7 @@ def markdown(table: pd.DataFrame, pairs: pd.DataFrame | None = None) -> str:
         lines += [
             f"### {noise}, n = {robots} ({count} held-out problems, 95 % bootstrap CIs)",
             "",
-            "| row | F mean | F median [95 % CI] | local F median [95 % CI] "
+            "| row | F mean | F median [95 % CI] | robots' local F median [95 % CI] "
             "| ATE mean [m] [95 % CI] | median F / no-op | gap closed (F, ATE) |",
             "|---|---:|---:|---:|---:|---:|---:|",
         ]
@@ -263,8 +268,8 @@ def markdown(table: pd.DataFrame, pairs: pd.DataFrame | None = None) -> str:
             lines.append(
                 f"| {record.row} | {record.F_mean:.4g} | {record.F_median:.4g} "
                 f"[{record.F_median_ci[0]:.4g}, {record.F_median_ci[1]:.4g}] "
-                f"| {record.F_local_median:.4g} [{record.F_local_median_ci[0]:.4g}, "
-                f"{record.F_local_median_ci[1]:.4g}] "
+                f"| {record.F_robots_median:.4g} [{record.F_robots_median_ci[0]:.4g}, "
+                f"{record.F_robots_median_ci[1]:.4g}] "
                 f"| {record.ATE_mean:.3f} [{record.ATE_mean_ci[0]:.3f}, "
                 f"{record.ATE_mean_ci[1]:.3f}] | {record.median_ratio_to_noop:.3f} "
                 f"| {record.closed_F:.2f}, {record.closed_ATE:.2f} |"
