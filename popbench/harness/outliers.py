@@ -123,7 +123,7 @@ def model_options(config: OutliersConfig) -> dict[str, Any]:
     if config.model == "vertigo-grouped":
         options["group_size"] = config.group_size
     if config.outlier_mask is not None:
-        options["outlier_mask"] = str(config.outlier_mask)
+        options["outlier_mask"] = str(config.outlier_mask.resolve())  # for worker processes
         options["outlier_mask_sha256"] = file_sha256(config.outlier_mask)
     return options
 
