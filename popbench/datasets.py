@@ -1,11 +1,13 @@
 """The registry of the paper's datasets: pinned URLs, sha256 checksums, local lookup, download.
 
-Files are looked up, by their registered file name, in ``$POPBENCH_DATA`` (when set) and then in
-the per-user cache (``$XDG_CACHE_HOME/popbench`` or ``~/.cache/popbench``). A missing file is
+Files are looked up, by their registered file name, in ``$POPBENCH_DATA`` (when set), then in
+the per-user cache (``$XDG_CACHE_HOME/popbench`` or ``~/.cache/popbench``), then, for a record
+that names one (``packaged``), in an installed Python package that ships the same file (GTSAM's
+wheel ships ``w10000.graph``; the package is located, not imported). A missing file is
 downloaded from its pinned raw GitHub URL into :func:`data_dir` (a temporary file, verified, then
-renamed into place), so a half-written or tampered file is never used. Every file is verified
-against its sha256 before it is read; a verification is remembered per (path, size, mtime) for the
-life of the process.
+renamed into place), so a half-written or tampered file is never used. Every file, wherever it
+was found, is verified against its sha256 before it is read; a verification is remembered per
+(path, size, mtime) for the life of the process.
 
 ``grid1000`` is an alias for ``grid1000_3``: the paper does not say which of the five Grid1000
 noise levels it used (its table gives only 1000 poses / 1250 edges). Level 3 is the middle one
@@ -18,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.util
 import os
 import tempfile
 import urllib.error
@@ -35,6 +38,7 @@ _VERTIGO = f"{_RAW}/OpenSLAM-org/openslam_vertigo/e57e88cbc1756070f37c6c32f87be9
 _UF = f"{_RAW}/corelabuf/planar_pgo_datasets/52d8cdce240d3d11ebf1e8936c0e56195a951637/datasets"
 _SESYNC = f"{_RAW}/david-m-rosen/SE-Sync/9b631b6b82d8aa7d32ab846412ae1c070412b7b6/data"
 _APEX = f"{_RAW}/amin-abouee/apex-solver/8ddabc07c0f3b75bceca6893246beb42a5fe19ed/data"
+_GTSAM = f"{_RAW}/borglab/gtsam/0ffe6c930302ebd297484e65e6e8d467c91d26b0/examples/Data"
 _DOWNLOAD_TIMEOUT_S = 30.0
 _CHUNK_BYTES = 1 << 16
 
@@ -52,6 +56,12 @@ class Dataset:
         description: one line for ``popbench datasets list``.
         ground_truth: name of the registered file whose VERTEX lines are the true poses, or None.
         alias_of: the registered name this entry duplicates, or None.
+        packaged: ``(package, path inside it)`` of an installed Python package that ships the
+            same bytes, searched after the data folders, or None.
+        shared_copy: whether the team's data folder (``shared/datasets``, POPBENCH_DATA in the
+            tests and CI, which have no network) holds the file. A record with neither a shared
+            copy nor ``packaged`` is not expected offline: the tests skip it, naming it, when
+            it is missing (tests/conftest.py).
     """
 
     name: str
@@ -63,6 +73,8 @@ class Dataset:
     description: str
     ground_truth: str | None = None
     alias_of: str | None = None
+    packaged: tuple[str, str] | None = None
+    shared_copy: bool = True
 
 
 def _grid_level(level: int, sha256: str, sigma_w: str) -> Dataset:
@@ -209,6 +221,38 @@ _ENTRIES = [
         1172,
         "CSAIL, Carlone's original TORO file (same cost as csail)",
     ),
+    Dataset(
+        "fr079",
+        "toro/fr079_toro.graph",
+        f"{_APEX}/FR079_P_toro.graph",
+        "ba53624ae4ed843258359c8e5713e7456943b6daf2e4a17b800a90e170d7e659",
+        989,
+        1217,
+        "FR079 (Freiburg building 079), Carlone's TORO file FR079_P_toro, real data",
+        shared_copy=False,
+    ),
+    Dataset(
+        "frh",
+        "toro/frh_toro.graph",
+        f"{_APEX}/FRH_P_toro.graph",
+        "56868ab910e876e358ab74478c55f48aa6275bd133739f927510e442b3a523ee",
+        1316,
+        2820,
+        "FRH (Freiburg hospital), Carlone's TORO file FRH_P_toro, real data",
+        shared_copy=False,
+    ),
+    Dataset(
+        "w10000",
+        "toro/w10000.graph",
+        f"{_GTSAM}/w10000.graph",
+        "1e88f220bd580a4c2b9fc065358608a53b26b1c30033405990b4cdc83236fc89",
+        4125,
+        50376,
+        "W10000 (Olson's simulated world, GTSAM's example; not City10000): 10000 poses and "
+        "64311 edges in the file, 5875 EQUIV lines merge them to these counts",
+        packaged=("gtsam", "Data/w10000.graph"),
+        shared_copy=False,
+    ),
 ]
 
 DATASETS: dict[str, Dataset] = {entry.name: entry for entry in _ENTRIES}
@@ -281,10 +325,28 @@ def _check(dataset: Dataset, path: Path) -> None:
 
 
 def find(name: str) -> Path | None:
-    """The first existing copy of ``name``'s file in :func:`search_dirs` (unverified), or None."""
+    """The first existing copy of ``name``'s file in :func:`search_dirs`, else in its record's
+    ``packaged`` source (:func:`packaged_path`); unverified; or None."""
     dataset = get(name)
     for folder in search_dirs():
         candidate = folder / dataset.filename
+        if candidate.is_file():
+            return candidate
+    return packaged_path(dataset)
+
+
+def packaged_path(dataset: Dataset) -> Path | None:
+    """The file ``dataset.packaged`` names inside its installed package (located with
+    ``importlib.util.find_spec``, not imported), or None when it has none or it is missing."""
+    if dataset.packaged is None:
+        return None
+    package, inside = dataset.packaged
+    try:
+        spec = importlib.util.find_spec(package)
+    except (ImportError, ValueError):
+        return None
+    for folder in (spec.submodule_search_locations or []) if spec else []:
+        candidate = Path(folder) / inside
         if candidate.is_file():
             return candidate
     return None
@@ -309,6 +371,8 @@ def dataset_path(name: str, download: bool = True) -> Path:
 
 def _missing_message(dataset: Dataset, reason: str = "") -> str:
     folders = " or ".join(str(folder) for folder in search_dirs())
+    if dataset.packaged is not None:
+        folders += f" or the installed package {dataset.packaged[0]}"
     return (
         f"dataset {dataset.name} ({dataset.filename}) is not in {folders}{reason}; set "
         f"POPBENCH_DATA to a folder holding it, or run `popbench datasets fetch {dataset.name}` "

@@ -20,23 +20,61 @@ chosen uniformly without replacement, get their measurement replaced by ``θ ~ U
 looks exactly as confident as the inlier it replaced. The estimate ``graph.poses`` is left
 unchanged.
 
+**Added false loop closures** (:func:`add_false_loop_closures`, the models of
+:data:`ADDED_MODELS`, after Sünderhauf & Protzel's Vertigo ``generateDataset.py``, whose data
+the DCS, max-mixture and GNC papers use): instead of corrupting edges, ``round(rate · L / g)``
+groups of ``g`` new edges are *added*, ``L`` the graph's loop closures (kinds LOOP and
+INTER_LOOP), ``g`` the group size (1 except for ``vertigo-grouped``):
+
+* ``vertigo-random``: between two poses ``a, b`` drawn uniformly with ``|a − b| ≥ 2``.
+* ``vertigo-local``: ``b − a`` drawn uniformly in ``2 … LOCAL_WINDOW`` (20 poses, Vertigo's
+  window), ``a`` uniformly among the poses where that fits.
+* ``vertigo-grouped``: a random pair ``(a, b)`` as ``vertigo-random``, then the ``g`` mutually
+  consistent edges ``(a + k, b + k)``, ``k = 0 … g − 1``, all with the same measurement and
+  information (a front end that matched a whole stretch of trajectory wrongly).
+
+``|a − b| ≥ 2`` (Vertigo's rule): an edge between consecutive ids would be odometry. Each group's
+measurement is drawn around the identity, ``t ~ N(0, ADDED_SIGMA_T² I₂)`` [m] and
+``θ ~ N(0, ADDED_SIGMA_THETA²)`` [rad] (0.3 m and 10°, Vertigo's); its information is that of a
+loop closure of the graph drawn uniformly (so the added edges' information is distributed as the
+true closures'). Nothing in the graph tells an added edge from a true closure: it is written in
+the orientation of the graph's loop closures (tail < head with the share of them that are), its
+kind is the one :func:`popbench.graph.robot_kinds` (or :func:`~popbench.graph.single_robot_kinds`)
+gives any edge between those poses, and it is inserted in the edge list where a front end would
+emit it, after the last edge that reaches its later pose. Only the returned mask knows it.
+
 **Scores** (:func:`precision_recall`) are computed over the candidate set's edges (``among=``):
 an edge that could not be an outlier is neither a hit nor a false alarm.
+
+**Mask files** (:func:`read_outlier_mask`): a graph file that already holds false loop closures
+(e.g. one of Vertigo's) is scored against a text file with one line per edge of the graph as
+read, in order, holding ``1`` (false) or ``0`` (true); blank lines and ``#`` comments are skipped.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from popbench import se2
 from popbench.distributed import DistributedProblem
-from popbench.errors import ValueRangeError
-from popbench.graph import EdgeKind, PoseGraph
+from popbench.errors import DataFormatError, ValueRangeError
+from popbench.graph import EdgeKind, PoseGraph, robot_kinds, single_robot_kinds
 
 CANDIDATE_SETS: dict[str, tuple[EdgeKind, ...]] = {
     "loops": (EdgeKind.LOOP, EdgeKind.INTER_LOOP),
     "paper": (EdgeKind.LOOP, EdgeKind.INTER_RELATIVE, EdgeKind.INTER_LOOP),
 }
 TRANSLATION_SCALE = 0.5  # σ_t = 0.5 · L_avg
+
+CORRUPT = "corrupt"  # the paper's model: corrupt existing loop closures (inject_outliers)
+ADDED_MODELS = ("vertigo-random", "vertigo-local", "vertigo-grouped")  # add_false_loop_closures
+OUTLIER_MODELS = (CORRUPT, *ADDED_MODELS)
+LOCAL_WINDOW = 20  # vertigo-local: 2 ≤ |a − b| ≤ 20 poses
+ADDED_SIGMA_T = 0.3  # [m] per axis, the added edges' translation
+ADDED_SIGMA_THETA = float(np.deg2rad(10.0))  # [rad], their rotation
+DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group
 
 
 def candidate_mask(graph: PoseGraph, candidates: str = "loops") -> np.ndarray:
@@ -136,3 +174,119 @@ def precision_recall(
     precision = hits / num_flagged if num_flagged else 1.0
     recall = hits / num_true if num_true else 1.0
     return precision, recall
+
+
+def add_false_loop_closures(
+    graph: PoseGraph, rate: float, model: str, seed: int = 0, group_size: int = DEFAULT_GROUP_SIZE
+) -> tuple[PoseGraph, np.ndarray]:
+    """Add false loop closures to ``graph`` (see the module docstring).
+
+    Args:
+        graph: the clean graph; its loop closures (kinds LOOP, INTER_LOOP) set the count and
+            lend their information matrices; its robots (if any) the new edges' kinds.
+        rate: added edges as a fraction of the graph's loop closures, in ``[0, 1]``.
+        model: one of :data:`ADDED_MODELS`.
+        seed: seed of ``np.random.default_rng``.
+        group_size: edges per group of ``vertigo-grouped`` (≥ 1; the other models use 1).
+
+    Returns:
+        ``(graph, mask)``: the graph with ``K`` more edges, poses unchanged, and the
+        ``(M + K,)`` bool mask of the added edges.
+
+    Raises:
+        ValueRangeError: an unknown model, ``rate`` outside ``[0, 1]``, ``group_size < 1`` or
+            a graph too small for the pairs.
+    """
+    if model not in ADDED_MODELS:
+        raise ValueRangeError("outlier model", model, " | ".join(ADDED_MODELS))
+    if not 0.0 <= rate <= 1.0:
+        raise ValueRangeError("outlier rate", rate, "0 to 1")
+    if group_size < 1:
+        raise ValueRangeError("group size", group_size, "integers ≥ 1")
+    size = group_size if model == "vertigo-grouped" else 1
+    loops = candidate_edges(graph, "loops")
+    groups = int(round(rate * loops.size / size))
+    if graph.num_poses - size < 2 and groups:
+        raise ValueRangeError("group size", size, f"≤ {graph.num_poses - 2} for {graph.name}")
+    if groups == 0:
+        return graph, np.zeros(graph.num_edges, dtype=bool)
+    rng = np.random.default_rng(seed)
+    first, second = _pairs(rng, groups, graph.num_poses - size, model == "vertigo-local")
+    forward = rng.random(groups) < np.mean(graph.tails[loops] < graph.heads[loops])
+    lower, upper = np.minimum(first, second), np.maximum(first, second)
+    steps = np.arange(size)
+    tails = (np.where(forward, lower, upper)[:, None] + steps).ravel()
+    heads = (np.where(forward, upper, lower)[:, None] + steps).ravel()
+    measurement = np.column_stack(
+        [
+            rng.normal(0.0, ADDED_SIGMA_T, (groups, 2)),
+            se2.wrap(rng.normal(0.0, ADDED_SIGMA_THETA, groups)),
+        ]
+    )
+    lent = rng.choice(loops, size=groups)
+    measurements = np.repeat(measurement, size, axis=0)
+    information = np.repeat(graph.information[lent], size, axis=0)
+    if graph.robots is None:
+        kinds = single_robot_kinds(tails, heads)
+    else:
+        kinds = robot_kinds(tails, heads, graph.robots)
+    # a front end emits an edge when it reaches its later pose: after the last edge reaching it
+    reach = np.maximum.accumulate(np.maximum(graph.tails, graph.heads))
+    later = np.maximum(tails, heads)
+    order = np.argsort(later, kind="stable")
+    at = np.searchsorted(reach, later[order], side="right")
+    mask = np.insert(np.zeros(graph.num_edges, dtype=bool), at, True)
+    added = graph.replace(
+        tails=np.insert(graph.tails, at, tails[order]),
+        heads=np.insert(graph.heads, at, heads[order]),
+        measurements=np.insert(graph.measurements, at, measurements[order], axis=0),
+        information=np.insert(graph.information, at, information[order], axis=0),
+        kinds=np.insert(graph.kinds, at, kinds[order]),
+    )
+    return added, mask
+
+
+def _pairs(
+    rng: np.random.Generator, count: int, last: int, local: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` pose pairs ``(a, b)`` in ``0 … last`` with ``2 ≤ |a − b|`` (``≤ LOCAL_WINDOW``
+    when ``local``), drawn uniformly by rejection (a few vectorised rounds)."""
+    chosen_a, chosen_b = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    while chosen_a.size < count:
+        draws = 2 * (count - chosen_a.size) + 8
+        a = rng.integers(0, last + 1, draws)
+        if local:
+            b = a + rng.integers(2, LOCAL_WINDOW + 1, draws)
+            keep = b <= last
+        else:
+            b = rng.integers(0, last + 1, draws)
+            keep = np.abs(a - b) >= 2
+        chosen_a = np.concatenate([chosen_a, a[keep]])
+        chosen_b = np.concatenate([chosen_b, b[keep]])
+    return chosen_a[:count], chosen_b[:count]
+
+
+def read_outlier_mask(path: str | Path, num_edges: int) -> np.ndarray:
+    """The ``(num_edges,)`` bool outlier mask of a mask file (module docstring: one ``0``/``1``
+    line per edge of the graph as read, in order; blank lines and ``#`` comments skipped).
+
+    Raises:
+        DataFormatError: a line that is not ``0`` or ``1`` (file and line), or a count that is
+            not the graph's number of edges.
+    """
+    path = Path(path)
+    values: list[bool] = []
+    lineno = 0
+    with path.open() as handle:
+        for lineno, line in enumerate(handle, start=1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                continue
+            if text not in ("0", "1"):
+                raise DataFormatError(path, lineno, f"outlier mask value {text!r}: allowed 0 or 1")
+            values.append(text == "1")
+    if len(values) != num_edges:
+        raise DataFormatError(
+            path, lineno, f"{len(values)} mask value(s), the graph has {num_edges} edge(s)"
+        )
+    return np.array(values, dtype=bool)

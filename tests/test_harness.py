@@ -138,6 +138,39 @@ def test_outliers_tables_report_mean_and_interval():
     assert r"$\pm$" in reports.outliers_latex(frame)
 
 
+def test_outliers_table_prints_undefined_scores_as_such():
+    """A seed where a method flags nothing has no precision (nor recall without outliers): it
+    is left out of the mean and counted, even in cells written with precision_recall's 1."""
+    frame = pd.DataFrame(
+        {
+            "dataset": "csail",
+            "rate": 0.1,
+            "method": ["mm-pgo"] * 3 + ["gnc"] * 3,
+            "seed": [0, 1, 2] * 2,
+            "F": 1.0,
+            "F_inliers": 1.0,
+            "gap_gnc": 0.0,
+            "outliers": [4, 4, 0] * 2,
+            "flagged": [0, 0, 0, 4, 2, 1],
+            "precision": [1.0, 1.0, 1.0, 1.0, 0.5, 0.0],  # the old convention: 1 when none
+            "recall": [0.0, 0.0, 1.0, 1.0, 0.25, 1.0],  # and recall 1 without outliers
+        }
+    )
+    summary = reports.outliers_summary(frame).set_index("method")
+    assert summary.loc["mm-pgo", "precision_undefined"] == 3
+    assert np.isnan(summary.loc["mm-pgo", "precision"])
+    assert summary.loc["gnc", "precision"] == pytest.approx(0.5)  # over the three defined
+    assert summary.loc["gnc", "recall"] == pytest.approx(0.625)  # seed 2 has no outlier
+    assert summary.loc["gnc", "recall_undefined"] == 1
+    assert summary.loc["mm-pgo", "recall_undefined"] == 1
+    markdown = reports.outliers_markdown(frame)
+    row = markdown.splitlines()[2]
+    assert "| – [undefined 3/3] |" in row  # mm-pgo's precision, not "1 ± 0"
+    assert "| 0 ± 0 [undefined 1/3] |" in row  # mm-pgo's recall over seeds 0 and 1
+    assert "| 0.5 ± 1.242 |" in row  # gnc's precision, every seed defined
+    assert "undefined" in reports.outliers_latex(frame)
+
+
 def test_outliers_cells_run_methods_with_their_record_options():
     from popbench.harness.outliers import OutliersConfig, cell_specs
     from popbench.methods import method_record

@@ -326,3 +326,75 @@ def test_every_experiment_passes_its_run_options_as_one_run(capsys, monkeypatch,
     options = ("--fresh", "--jobs", "3", "--threads", "2", "--executor", "serial")
     assert _run(capsys, "run", command, *options)[0] == 0
     assert runs == [Run(Execution(jobs=3, executor="serial", threads=2), fresh=True)]
+
+
+def test_outliers_vertigo_models_and_a_mask_file(tmp_path, capsys):
+    """--model vertigo-*: false loop closures added and scored; --outlier-mask: a file that
+    already holds them (written here from the injector) gives the same problem and scores."""
+    from popbench.datasets import load
+    from popbench.io import write_g2o
+    from popbench.outliers import add_false_loop_closures
+
+    graph = grid_g2o(tmp_path / "grid.g2o")
+    base = ("run", "outliers", "--datasets", graph, "--robots", "2", "--methods", "gnc")
+    base += ("--seeds", "0", "--iterations", "30", "--executor", "serial")
+    code, _, err = _run(
+        capsys,
+        *base,
+        "--model",
+        "vertigo-grouped",
+        "--group-size",
+        "2",
+        "--rate",
+        "0.5",
+        "--out",
+        tmp_path / "g",
+    )
+    assert code == 0, err
+    cells = pd.read_csv(tmp_path / "g" / "outliers.csv")
+    assert cells["outliers"].tolist() == [6]  # round(0.5 · 12 / 2) groups of 2
+    assert (cells["model"] == "vertigo-grouped").all() and (cells["group_size"] == 2).all()
+    assert cells["paper_precision"].isna().all()  # the paper's numbers are for corrupt only
+    assert "vertigo-grouped (groups of 2" in (tmp_path / "g" / "outliers.md").read_text()
+    # the same false closures written into a file, named by a mask file
+    added, mask = add_false_loop_closures(load(graph), 0.5, "vertigo-random", seed=0)
+    write_g2o(added, tmp_path / "bad.g2o")
+    (tmp_path / "bad.mask").write_text("".join(f"{int(m)}\n" for m in mask))
+    code, _, err = _run(
+        capsys, *base, "--model", "vertigo-random", "--rate", "0.5", "--out", tmp_path / "r"
+    )
+    assert code == 0, err
+    base = (*base[:3], tmp_path / "bad.g2o", *base[4:])
+    code, _, err = _run(
+        capsys, *base, "--outlier-mask", tmp_path / "bad.mask", "--out", tmp_path / "m"
+    )
+    assert code == 0, err
+    injected = pd.read_csv(tmp_path / "r" / "outliers.csv").iloc[0]
+    named = pd.read_csv(tmp_path / "m" / "outliers.csv").iloc[0]
+    assert named["model"] == "mask" and named["outliers"] == injected["outliers"] == 6
+    assert named["rate"] == pytest.approx(0.5)  # 6 false of the 12 true closures
+    for column in ("precision", "recall", "flagged", "F_inliers"):
+        assert named[column] == pytest.approx(injected[column]), column
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (("--model", "vertigo"), "invalid --model 'vertigo'"),
+        (("--group-size", "3"), "--group-size is for --model vertigo-grouped"),
+        (("--outlier-mask", "{tmp}/none.mask"), "invalid --outlier-mask"),
+        (("--outlier-mask", "{tmp}/m.mask", "--rate", "0.1"), "--outlier-mask names"),
+        (("--outlier-mask", "{tmp}/m.mask"), "{tmp}/m.mask:2: 1 mask value(s), the graph has 31"),
+        (("--model", "vertigo-local", "--candidates", "paper"), "invalid --candidates with"),
+    ],
+)
+def test_outliers_rejects_bad_model_options_before_any_work(tmp_path, capsys, options, message):
+    graph = grid_g2o(tmp_path / "grid.g2o")
+    (tmp_path / "m.mask").write_text("# too short\n1\n")
+    out = tmp_path / "D"
+    options = [str(o).format(tmp=tmp_path) for o in options]
+    args = ("run", "outliers", "--datasets", graph, "--robots", "1", *options)
+    code, _, err = _run(capsys, *args, "--methods", "gnc", "--out", out)
+    assert code == 2, err
+    _one_error_line(err, message.format(tmp=tmp_path))
+    assert not out.exists()

@@ -5,13 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from popbench.errors import ValueRangeError
-from popbench.graph import EdgeKind
+from popbench.errors import DataFormatError, ValueRangeError
+from popbench.graph import EdgeKind, robot_kinds, single_robot_kinds
 from popbench.outliers import (
+    ADDED_MODELS,
+    ADDED_SIGMA_T,
+    ADDED_SIGMA_THETA,
+    LOCAL_WINDOW,
+    add_false_loop_closures,
     candidate_edges,
     candidate_mask,
     inject_outliers,
     precision_recall,
+    read_outlier_mask,
     with_outliers,
 )
 from popbench.synthetic import make_problem
@@ -116,3 +122,113 @@ def test_precision_recall_among_the_candidates():
     assert precision_recall(flagged & ~among, truth, among) == (1.0, 0.0)
     with pytest.raises(ValueRangeError):
         precision_recall(flagged, truth, among[:3])
+
+
+# ----- Vertigo-style added false loop closures ----------------------------------------------
+
+
+def _groups(graph, mask):
+    """The added edges as groups: a dict measurement-row → (tails, heads, informations)."""
+    groups: dict = {}
+    for edge in np.flatnonzero(mask):
+        key = tuple(graph.measurements[edge])
+        tails, heads, infos = groups.setdefault(key, ([], [], []))
+        tails.append(graph.tails[edge])
+        heads.append(graph.heads[edge])
+        infos.append(graph.information[edge])
+    return groups
+
+
+@pytest.mark.parametrize("model", ADDED_MODELS)
+def test_added_closures_count_order_kinds_and_reproducibility(model):
+    problem = make_problem(robots=5, seed=2, loop_ratio=0.3)
+    graph = problem.graph
+    loops = candidate_edges(graph, "loops")
+    size = 3 if model == "vertigo-grouped" else 1
+    added, mask = add_false_loop_closures(graph, 0.4, model, seed=7, group_size=3)
+    expected = round(0.4 * loops.size / size) * size
+    assert mask.sum() == expected > 0 and added.num_edges == graph.num_edges + expected
+    # the true edges are kept, in order; the poses are untouched
+    for field in ("tails", "heads", "measurements", "information", "kinds"):
+        np.testing.assert_array_equal(getattr(added, field)[~mask], getattr(graph, field))
+    np.testing.assert_array_equal(added.poses, graph.poses)
+    # every added edge is a closure, labelled as any edge between its poses would be
+    gap = np.abs(added.tails[mask] - added.heads[mask])
+    assert gap.min() >= 2 and (model != "vertigo-local" or gap.max() <= LOCAL_WINDOW)
+    np.testing.assert_array_equal(added.kinds, robot_kinds(added.tails, added.heads, graph.robots))
+    assert set(added.kinds[mask]) <= {EdgeKind.LOOP, EdgeKind.INTER_LOOP}
+    assert np.all(candidate_mask(added, "loops")[mask])
+    # not appended: each one follows the last edge that reaches its later pose
+    reach = np.maximum.accumulate(np.maximum(added.tails, added.heads)[~mask])
+    for edge in np.flatnonzero(mask):
+        before = np.count_nonzero(~mask[:edge])  # true edges before it
+        later = max(added.tails[edge], added.heads[edge])
+        assert before == np.searchsorted(reach, later, side="right")
+    assert not np.all(mask[graph.num_edges :])
+    # information lent by a true loop closure; measurement near the identity
+    true_info = graph.information[loops].reshape(loops.size, 1, 9)
+    lent = added.information[mask].reshape(1, -1, 9)
+    assert np.all(np.any(np.all(true_info == lent, axis=2), axis=0))
+    assert np.all(np.abs(added.measurements[mask][:, :2]) < 6 * ADDED_SIGMA_T)
+    again, mask_again = add_false_loop_closures(graph, 0.4, model, seed=7, group_size=3)
+    np.testing.assert_array_equal(mask_again, mask)
+    np.testing.assert_array_equal(again.measurements, added.measurements)
+    np.testing.assert_array_equal(again.tails, added.tails)
+    other, _ = add_false_loop_closures(graph, 0.4, model, seed=8, group_size=3)
+    assert not np.array_equal(other.measurements, added.measurements)
+
+
+def test_single_robot_graph_gets_loop_kinds(small_graph):
+    added, mask = add_false_loop_closures(small_graph, 1.0, "vertigo-random", seed=1)
+    assert mask.sum() == 3  # small_graph has 3 loop closures
+    np.testing.assert_array_equal(added.kinds, single_robot_kinds(added.tails, added.heads))
+    assert np.all(added.kinds[mask] == EdgeKind.LOOP)
+
+
+def test_grouped_closures_are_mutually_consistent():
+    graph = make_problem(robots=3, seed=4, loop_ratio=0.3).graph
+    added, mask = add_false_loop_closures(graph, 0.5, "vertigo-grouped", seed=3, group_size=4)
+    groups = _groups(added, mask)
+    assert len(groups) * 4 == mask.sum() and len(groups) >= 3
+    for tails, heads, infos in groups.values():
+        assert len(tails) == 4
+        order = np.argsort(tails)
+        np.testing.assert_array_equal(np.diff(np.array(tails)[order]), 1)
+        np.testing.assert_array_equal(np.diff(np.array(heads)[order]), 1)  # (a + k, b + k)
+        assert all(np.array_equal(info, infos[0]) for info in infos)
+    # with the default group size of one, the random model makes one edge per measurement
+    single, single_mask = add_false_loop_closures(graph, 0.5, "vertigo-random", seed=3)
+    assert len(_groups(single, single_mask)) == single_mask.sum()
+
+
+def test_added_measurement_distribution():
+    graph = make_problem(robots=40, seed=1, loop_ratio=0.3).graph
+    added, mask = add_false_loop_closures(graph, 1.0, "vertigo-random", seed=2)
+    z = added.measurements[mask]
+    assert mask.sum() > 500
+    assert abs(np.std(z[:, :2]) / ADDED_SIGMA_T - 1.0) < 0.1
+    assert abs(np.std(z[:, 2]) / ADDED_SIGMA_THETA - 1.0) < 0.1
+    assert abs(np.mean(z[:, :2])) < 0.05
+
+
+def test_added_closures_reject_bad_arguments(small_graph):
+    for kwargs in (
+        {"rate": 0.1, "model": "corrupt"},
+        {"rate": 1.5, "model": "vertigo-random"},
+        {"rate": 0.1, "model": "vertigo-grouped", "group_size": 0},
+    ):
+        with pytest.raises(ValueRangeError):
+            add_false_loop_closures(small_graph, **kwargs)
+    added, mask = add_false_loop_closures(small_graph, 0.0, "vertigo-local")
+    assert added is small_graph and not mask.any()
+
+
+def test_outlier_mask_file(tmp_path):
+    path = tmp_path / "m.mask"
+    path.write_text("# one line per edge\n0\n1\n\n0  # a true closure\n1\n")
+    np.testing.assert_array_equal(read_outlier_mask(path, 4), [False, True, False, True])
+    with pytest.raises(DataFormatError, match=r"m\.mask:6: 4 mask value\(s\), the graph has 5"):
+        read_outlier_mask(path, 5)
+    path.write_text("0\n1\n2\n")
+    with pytest.raises(DataFormatError, match=r"m\.mask:3: outlier mask value '2': allowed 0 or 1"):
+        read_outlier_mask(path, 3)

@@ -17,7 +17,7 @@ from pathlib import Path
 import typer
 
 from popbench.cli import options
-from popbench.errors import ValueRangeError
+from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness.executors import Run
 
 app = typer.Typer(
@@ -127,10 +127,36 @@ def table1_command(
     "outliers",
     "popbench run outliers --rate 0.025,0.05,0.1       # the paper's Table II",
     "popbench run outliers --datasets intel --seeds 0 --iterations 100 --out results/o",
+    "popbench run outliers --model vertigo-random --rate 0.1 --datasets intel,csail,m3500",
+    "popbench run outliers --model vertigo-grouped --group-size 10 --rate 0.05",
+    "popbench run outliers --datasets mine.g2o --outlier-mask mine.mask   # its own outliers",
 )
 def outliers_command(
     *,
-    rate: str = typer.Option("0.1", help="Outlier rates (fractions), e.g. 0.025,0.05,0.1."),
+    rate: str = typer.Option(
+        None,
+        help="Outlier rates (fractions), e.g. 0.025,0.05,0.1: corrupt: of the candidate edges; "
+        "vertigo-*: added edges per loop closure of the graph (default: 0.1).",
+        show_default=False,
+    ),
+    model: str = typer.Option(
+        "corrupt",
+        help="Outlier model: corrupt (the paper's: loop closures' measurements replaced) | "
+        "vertigo-random | vertigo-local | vertigo-grouped (false loop closures added, "
+        "docs/outliers.md).",
+    ),
+    group_size: int = typer.Option(
+        None,
+        min=1,
+        help="Edges per group of vertigo-grouped (default: 5).",
+        show_default=False,
+    ),
+    outlier_mask: Path = typer.Option(
+        None,
+        help="A file with one line per edge of the one dataset, 1 = false loop closure, 0 = "
+        "true: score the dataset's own outliers (no injection; not with --rate, --model).",
+        show_default=False,
+    ),
     datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
     methods: str = typer.Option("prop-v1,mm-pgo,gnc", help="Methods (need an inlier mask)."),
     robots: int = typer.Option(7, min=1, help="Team size."),
@@ -152,18 +178,28 @@ def outliers_command(
     out: options.Out = Path("results/outliers"),
     run: Run,
 ) -> None:
-    """The paper's Table II: F, outlier precision and recall with corrupted loop closures.
+    """The paper's Table II: F, outlier precision and recall with corrupted loop closures
+    (--model corrupt) or with false loop closures added (vertigo-random, vertigo-local,
+    vertigo-grouped) or named by a mask file (--outlier-mask).
 
     Writes OUT/outliers.csv (one row per cell), outliers_summary.csv, outliers.md and outliers.tex
     (mean ± 95 % half-width over seeds beside the paper's numbers). Every dataset is loaded and
     the team size checked before anything is computed.
     """
     from popbench.harness.outliers import OutliersConfig, run_outliers
-    from popbench.outliers import CANDIDATE_SETS
+    from popbench.outliers import CANDIDATE_SETS, CORRUPT, DEFAULT_GROUP_SIZE, OUTLIER_MODELS
 
+    model = options.names(model, OUTLIER_MODELS, "--model")[0]
+    if outlier_mask is not None:
+        if not outlier_mask.is_file():
+            raise ValueRangeError("--outlier-mask", str(outlier_mask), "an existing file")
+        if rate is not None or model != CORRUPT:
+            raise PopbenchError("--outlier-mask names the outliers: give no --rate or --model")
+    if group_size is not None and model != "vertigo-grouped":
+        raise PopbenchError(f"--group-size is for --model vertigo-grouped, not {model}")
     config = OutliersConfig(
         datasets=options.names(datasets, None, "dataset"),
-        rates=options.rates(rate),
+        rates=options.rates(rate or "0.1"),
         methods=options.methods(methods),
         robots=robots,
         seeds=options.integers(seeds, "seed", 0),
@@ -173,6 +209,9 @@ def outliers_command(
         if kernel is None
         else options.names(kernel, options.ROBUST_KERNELS, "kernel")[0],
         candidates=options.names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
+        model=model,
+        group_size=group_size or DEFAULT_GROUP_SIZE,
+        outlier_mask=outlier_mask,
         out=out,
     )
     files = "outliers.csv, outliers_summary.csv, outliers.md, outliers.tex"

@@ -1,10 +1,21 @@
 """The paper's Table II: F, outlier precision and recall with corrupted loop closures.
 
-For each dataset, rate and seed, a fraction of the candidate edges of the split dataset (the
-loop closures by default, ``candidates="paper"`` adds the cut odometry edges; see
-:mod:`popbench.outliers`) is corrupted (:func:`popbench.outliers.inject_outliers`); the initial
-estimate is then made from the *corrupted* measurements, as a real system would. Each method's
-``inlier_mask`` is scored against the injected mask over the candidate set's edges.
+For each dataset, rate and seed, outliers are made by the ``model`` (:mod:`popbench.outliers`):
+
+* ``corrupt`` (default, the paper's): a fraction of the candidate edges of the split dataset
+  (the loop closures by default, ``candidates="paper"`` adds the cut odometry edges) is
+  corrupted (:func:`popbench.outliers.inject_outliers`);
+* ``vertigo-random | vertigo-local | vertigo-grouped``: false loop closures are added to the
+  dataset's graph (:func:`popbench.outliers.add_false_loop_closures`, ``rate`` = added edges
+  as a fraction of its loop closures), which is then split among the robots (METIS of the graph
+  with the false edges: the team splits the graph it is given);
+* ``mask``: the dataset already holds false loop closures, named by a mask file
+  (``outlier_mask``, :func:`popbench.outliers.read_outlier_mask`); ``rate`` is then the marked
+  edges as a fraction of the other loop closures.
+
+The initial estimate is then made from the *corrupted* measurements, as a real system would.
+Each method's ``inlier_mask`` is scored against the outlier mask over the candidate set's edges
+(the loop closures, for every model but ``corrupt`` with ``candidates="paper"``).
 
 The table (:mod:`popbench.harness.reports`, :func:`~popbench.harness.reports.outliers_summary`)
 reports per (dataset, rate, method) the mean and 95 % Student-t half-width over seeds of
@@ -24,7 +35,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from popbench.datasets import file_sha256
 from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
 from popbench.harness import problems, reports
 from popbench.harness.cache import grid_specs
 from popbench.harness.executors import Row, Run, Spec
@@ -33,11 +46,20 @@ from popbench.harness.runner import run_experiment
 from popbench.initial import with_start
 from popbench.methods import Budget, get_method, method_options, method_record
 from popbench.objective import objective
-from popbench.outliers import candidate_mask, inject_outliers, precision_recall
+from popbench.outliers import (
+    CORRUPT,
+    DEFAULT_GROUP_SIZE,
+    add_false_loop_closures,
+    candidate_mask,
+    inject_outliers,
+    precision_recall,
+    read_outlier_mask,
+)
 
 DATASETS = ("intel", "mit", "csail")
 RATES = (0.025, 0.05, 0.1)
 METHODS = ("prop-v1", "mm-pgo", "gnc")  # the paper's Table II and GNC
+MASK = "mask"  # the model of a dataset whose false loop closures a mask file names
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,13 +75,28 @@ class OutliersConfig:
     init: str = "odometry"
     kernel: str | None = None  # None: each method's registry record (outlier_options)
     candidates: str = "loops"
+    model: str = CORRUPT  # popbench.outliers.OUTLIER_MODELS, or MASK (set by outlier_mask)
+    group_size: int = DEFAULT_GROUP_SIZE  # vertigo-grouped only
+    outlier_mask: Path | None = None  # a mask file: model MASK, one dataset, rates unused
     out: Path = Path("results/outliers")
+
+    def __post_init__(self) -> None:
+        if self.outlier_mask is not None:
+            if len(self.datasets) != 1:
+                raise ValueRangeError(
+                    "--datasets with --outlier-mask", ",".join(self.datasets), "one dataset"
+                )
+            object.__setattr__(self, "model", MASK)
+        if self.model != CORRUPT and self.candidates != "loops":
+            raise ValueRangeError(
+                f"--candidates with the model {self.model}", self.candidates, "loops"
+            )
 
 
 def cell_specs(config: OutliersConfig) -> list[Spec]:
     axes = {
         "dataset": config.datasets,
-        "rate": config.rates,
+        "rate": config.rates if config.outlier_mask is None else (mask_rate(config),),
         "method": config.methods,
         "seed": config.seeds,
     }
@@ -68,11 +105,35 @@ def cell_specs(config: OutliersConfig) -> list[Spec]:
         "iterations": config.iterations,
         "init": config.init,
         "candidates": config.candidates,
+        **model_options(config),
     }
     specs = grid_specs("outliers", axes, shared)
     for spec in specs:
         spec["options"] = method_outlier_options(spec["method"], config.kernel)
     return specs
+
+
+def model_options(config: OutliersConfig) -> dict[str, Any]:
+    """What a cell needs of the outlier model beyond today's keys (nothing for ``corrupt``, so
+    its cells are specified as before): the model, the group size of ``vertigo-grouped``, the
+    mask file and its sha256 (an edited mask recomputes the cells)."""
+    if config.model == CORRUPT:
+        return {}
+    options: dict[str, Any] = {"model": config.model}
+    if config.model == "vertigo-grouped":
+        options["group_size"] = config.group_size
+    if config.outlier_mask is not None:
+        options["outlier_mask"] = str(config.outlier_mask.resolve())  # for worker processes
+        options["outlier_mask_sha256"] = file_sha256(config.outlier_mask)
+    return options
+
+
+def mask_rate(config: OutliersConfig) -> float:
+    """The mask's false loop closures as a fraction of the dataset's other loop closures."""
+    graph = problems.load_graph(config.datasets[0])
+    mask = read_outlier_mask(config.outlier_mask, graph.num_edges)
+    loops = candidate_mask(graph, "loops")
+    return float((mask & loops).sum() / max((~mask & loops).sum(), 1))
 
 
 def method_outlier_options(method: str, kernel: str | None = None) -> dict[str, Any]:
@@ -85,23 +146,52 @@ def method_outlier_options(method: str, kernel: str | None = None) -> dict[str, 
 
 
 def corrupted_problem(
-    dataset: str, robots: int, rate: float, seed: int, init: str, candidates: str = "loops"
+    dataset: str,
+    robots: int,
+    rate: float,
+    seed: int,
+    init: str,
+    candidates: str = "loops",
+    model: str = CORRUPT,
+    group_size: int = DEFAULT_GROUP_SIZE,
+    outlier_mask: str | Path | None = None,
 ) -> DistributedProblem:
-    """The split dataset with outliers injected among ``candidates`` and its ``init`` start
-    made from them (:func:`popbench.initial.with_start` on the corrupted problem)."""
-    clean = problems.distributed_problem(dataset, robots, "given")  # the file's poses
-    graph, mask = inject_outliers(clean, rate, seed, candidates)
-    return with_start(DistributedProblem(graph, "given", mask), init)
+    """The split dataset with the outliers of ``model`` (module docstring; ``candidates`` for
+    ``corrupt``, ``group_size`` for ``vertigo-grouped``, the mask file for ``mask``) and its
+    ``init`` start made from them (:func:`popbench.initial.with_start`)."""
+    if model == CORRUPT:
+        clean = problems.distributed_problem(dataset, robots, "given")  # the file's poses
+        graph, mask = inject_outliers(clean, rate, seed, candidates)
+        return with_start(DistributedProblem(graph, "given", mask), init)
+    if model == MASK:
+        split = problems.distributed_problem(dataset, robots, "given")
+        mask = read_outlier_mask(outlier_mask, split.graph.num_edges)
+        return with_start(DistributedProblem(split.graph, "given", mask), init)
+    graph, mask = add_false_loop_closures(
+        problems.load_graph(dataset), rate, model, seed, group_size
+    )
+    split = DistributedProblem.from_graph(graph, robots, start="given", outlier_mask=mask)
+    return with_start(split, init)
 
 
 def compute_cell(spec: Spec) -> dict[str, Any]:
     candidates = spec.get("candidates", "loops")
+    model = spec.get("model", CORRUPT)
     problem = corrupted_problem(
-        spec["dataset"], spec["robots"], spec["rate"], spec["seed"], spec["init"], candidates
+        spec["dataset"],
+        spec["robots"],
+        spec["rate"],
+        spec["seed"],
+        spec["init"],
+        candidates,
+        model,
+        spec.get("group_size", DEFAULT_GROUP_SIZE),
+        spec.get("outlier_mask"),
     )
     options: dict[str, Any] = {"seed": spec["seed"], **spec["options"]}
     result = get_method(spec["method"])(problem, Budget(iterations=spec["iterations"]), **options)
     among = candidate_mask(problem.graph, candidates)
+    outliers = int((problem.outlier_mask & among).sum())
     if result.inlier_mask is None:
         precision = recall = float("nan")
         flagged = flagged_other = None
@@ -109,6 +199,8 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
         precision, recall = precision_recall(~result.inlier_mask, problem.outlier_mask, among)
         flagged = int((~result.inlier_mask & among).sum())
         flagged_other = int((~result.inlier_mask & ~among).sum())
+        precision = precision if flagged else float("nan")  # undefined: nothing flagged
+        recall = recall if outliers else float("nan")  # undefined: nothing to find
     return {
         "dataset": spec["dataset"],
         "rate": spec["rate"],
@@ -117,8 +209,10 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
         "seed": spec["seed"],
         "init": spec["init"],
         "candidates": candidates,
+        "model": model,
+        "group_size": spec.get("group_size", 1),
         "options": ", ".join(f"{k}={v}" for k, v in spec["options"].items()),
-        "outliers": int(problem.outlier_mask.sum()),
+        "outliers": outliers,
         "F": result.F,
         "F_inliers": objective(problem.graph.edge_subset(~problem.outlier_mask), result.poses),
         "F_chordal": result.F_chordal,
@@ -158,7 +252,7 @@ def write_outliers(config: OutliersConfig, rows: list[Row]) -> pd.DataFrame:
     """Table II of the cells' rows beside the paper's numbers, written into ``config.out``."""
     frame = pd.DataFrame(rows)
     paper = [
-        paper_table2_cell(d, r, m)
+        paper_table2_cell(d, r, m) if config.model == CORRUPT else None  # the paper's model only
         for d, r, m in zip(frame["dataset"], frame["rate"], frame["method"], strict=True)
     ]
     for k, name in enumerate(("paper_F", "paper_precision", "paper_recall")):

@@ -182,6 +182,22 @@ OUTLIER_METRICS = (
     ("flagged", "flagged", None, True),
 )
 OUTLIER_REFERENCE = "gnc"  # the robust reference: Table II's F floor (gap_gnc)
+# A score with nothing to divide by is undefined: precision where nothing was flagged, recall
+# where nothing was to be found. (score, the count column whose zero makes it undefined)
+UNDEFINED_WHEN_ZERO = (("precision", "flagged"), ("recall", "outliers"))
+
+
+def defined_scores(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with precision NaN where ``flagged`` is 0 and recall NaN where ``outliers`` is
+    0, and the bool columns ``precision_undefined``, ``recall_undefined`` marking them. Cells
+    written before they were NaN there hold 1 (:func:`popbench.outliers.precision_recall`'s
+    convention), so the counts decide, not the value."""
+    frame = frame.copy()
+    for score, count in UNDEFINED_WHEN_ZERO:
+        undefined = (frame[count] == 0) if count in frame else pd.Series(False, frame.index)
+        frame[f"{score}_undefined"] = undefined
+        frame.loc[undefined, score] = math.nan
+    return frame
 
 
 def outliers_summary(frame: pd.DataFrame) -> pd.DataFrame:
@@ -189,8 +205,11 @@ def outliers_summary(frame: pd.DataFrame) -> pd.DataFrame:
     of the 95 % Student-t interval (``NAME`` and ``NAME_ci95``) of ``F_inliers``, ``gap_gnc``,
     ``precision``, ``recall``, ``flagged`` (candidate edges flagged) and ``F`` (every edge), with
     the options the method ran with, the seed count, the mean number of outliers and the
-    paper's values. Methods in the order they first appear."""
+    paper's values. Precision and recall are averaged over the seeds where they are defined
+    (:func:`defined_scores`); ``precision_undefined`` and ``recall_undefined`` count the
+    others. Methods in the order they first appear."""
     summary = []
+    frame = defined_scores(frame)
     for (dataset, rate, method), group in frame.groupby(["dataset", "rate", "method"], sort=False):
         row = {
             "dataset": dataset,
@@ -203,6 +222,8 @@ def outliers_summary(frame: pd.DataFrame) -> pd.DataFrame:
         for column in ("F_inliers", "gap_gnc", "precision", "recall", "flagged", "F"):
             values = group[column] if column in group else pd.Series(dtype=float)
             row[column], row[f"{column}_ci95"] = mean_ci(values.to_numpy(dtype=float))
+        for score, _ in UNDEFINED_WHEN_ZERO:
+            row[f"{score}_undefined"] = int(group[f"{score}_undefined"].sum())
         for column in ("paper_F", "paper_precision", "paper_recall"):
             row[column] = float(group[column].iloc[0]) if column in group else math.nan
         summary.append(row)
@@ -217,7 +238,8 @@ def _method_header(method: str, options: str) -> str:
 
 def _outliers_grid(summary: pd.DataFrame) -> list[list[str]]:
     """Rows of cells: per (dataset, rate), each metric of :data:`OUTLIER_METRICS` per method,
-    ``mean ± 95 % half-width (paper)``."""
+    ``mean ± 95 % half-width [undefined k/K] (paper)``: ``–`` where no seed has a value, the
+    bracket where ``k`` of the ``K`` seeds have an undefined score."""
     methods = _ordered(summary["method"], ())
     options = {m: summary.loc[summary["method"] == m, "options"].iloc[0] for m in methods}
     columns = [
@@ -234,12 +256,19 @@ def _outliers_grid(summary: pd.DataFrame) -> list[list[str]]:
         row = [str(dataset), f"{100 * rate:g}", number(float(group["outliers"].mean()))]
         for _, column, paper, method in columns:
             cell = group[group["method"] == method]
-            if cell.empty or math.isnan(cell[column].iloc[0]):
+            undefined = (
+                int(cell[f"{column}_undefined"].iloc[0])
+                if not cell.empty and (f"{column}_undefined" in cell)
+                else 0
+            )
+            if cell.empty or (math.isnan(cell[column].iloc[0]) and not undefined):
                 row.append("–")
                 continue
             text = number(float(cell[column].iloc[0]))
             if not math.isnan(cell[f"{column}_ci95"].iloc[0]):
                 text += f" ± {number(float(cell[f'{column}_ci95'].iloc[0]))}"
+            if undefined:
+                text += f" [undefined {undefined}/{int(cell['seeds'].iloc[0])}]"
             if paper is not None and not math.isnan(cell[paper].iloc[0]):
                 text += f" ({number(float(cell[paper].iloc[0]))})"
             row.append(text)
@@ -253,8 +282,18 @@ OUTLIERS_NOTE = (
     "say which edges its F sums); gap to GNC = F (inliers) / GNC's F (inliers) of the same "
     "problem − 1. Precision and recall score the edges a method flags as outliers against the "
     "injected ones, over the corrupted candidate set's edges ({candidates}); flagged = candidate "
-    "edges flagged (precision is 1 when none is); outliers = injected per problem."
+    "edges flagged; outliers = injected per problem. Precision is undefined where a method "
+    "flags nothing, recall where there is no outlier: such a seed is left out of the mean and "
+    "counted in [undefined k/K] (– where no seed has a value). Outlier model: {model}."
 )
+OUTLIER_MODEL_NOTES = {
+    "corrupt": "corrupt (existing loop closures' measurements replaced, popbench.outliers)",
+    "vertigo-random": "vertigo-random (false loop closures added between random poses)",
+    "vertigo-local": "vertigo-local (false loop closures added between poses 2 to 20 apart)",
+    "vertigo-grouped": "vertigo-grouped (groups of {group_size} mutually consistent false loop "
+    "closures added)",
+    "mask": "mask (the dataset's own false loop closures, named by a mask file)",
+}
 
 
 def outliers_markdown(frame: pd.DataFrame) -> str:
@@ -262,12 +301,24 @@ def outliers_markdown(frame: pd.DataFrame) -> str:
     grid = _outliers_grid(outliers_summary(frame))
     lines = ["| " + " | ".join(grid[0]) + " |", "|" + "---|" * len(grid[0])]
     lines += ["| " + " | ".join(row) + " |" for row in grid[1:]]
-    note = OUTLIERS_NOTE.format(seeds=frame["seed"].nunique(), candidates=_candidates(frame))
+    note = OUTLIERS_NOTE.format(
+        seeds=frame["seed"].nunique(), candidates=_candidates(frame), model=_model(frame)
+    )
     return "\n".join(lines) + "\n\n" + note + "\n"
 
 
 def _candidates(frame: pd.DataFrame) -> str:
     return ", ".join(sorted(frame["candidates"].unique())) if "candidates" in frame else "loops"
+
+
+def _model(frame: pd.DataFrame) -> str:
+    """The note on the frame's outlier model(s); ``corrupt`` for frames without the column."""
+    if "model" not in frame:
+        return OUTLIER_MODEL_NOTES["corrupt"]
+    pairs = frame[["model", "group_size"]].drop_duplicates().itertuples(index=False)
+    return "; ".join(
+        OUTLIER_MODEL_NOTES[model].format(group_size=int(size)) for model, size in pairs
+    )
 
 
 def outliers_latex(frame: pd.DataFrame) -> str:
