@@ -12,6 +12,7 @@ a full recompute of every local residual each step (what a non-incremental step 
 
     .venv/bin/python benchmarks/bench_env.py [--device cuda] [--batch 32] [--robots 7]
         [--correction subtree] [--observation invariant] [--action-scale whitened]
+        [--base gauss-newton]
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import time
 import torch
 
 from envs import make_torchrl_env
-from envs.core import ACTION_SCALES, CORRECTIONS, OBSERVATIONS
+from envs.core import ACTION_SCALES, BASES, CORRECTIONS, OBSERVATIONS
 from envs.geometry import _gather_rows, residuals
 
 
@@ -168,11 +169,12 @@ def scaling(args: argparse.Namespace, device: str) -> None:
 
 
 def modes(args: argparse.Namespace) -> dict[str, str]:
-    """The env's correction / observation / action-scale options of this run."""
+    """The env's correction / observation / action-scale / base options of this run."""
     return {
         "correction": args.correction,
         "observation": args.observation,
         "action_scale": args.action_scale,
+        "base": args.base,
     }
 
 
@@ -187,6 +189,7 @@ def main() -> None:
     parser.add_argument("--correction", default="pose", choices=CORRECTIONS)
     parser.add_argument("--observation", default="paper", choices=OBSERVATIONS)
     parser.add_argument("--action-scale", default="metric", choices=ACTION_SCALES)
+    parser.add_argument("--base", default="none", choices=BASES)
     parser.add_argument(
         "--threads",
         type=int,

@@ -49,7 +49,8 @@ class BaseModel(NamedTuple):
 
     Attributes:
         gradient: ``(G, E+1, 3)`` g_c (F ≈ F₀ + 2 gᵀΔ + ΔᵀHΔ), action units (0 off the tree).
-        hessian: ``(G, E+1, 3, 3)`` H_c, action units (0 off the tree).
+        hessian: ``(G, E+1, 6)`` the upper triangle of H_c (xx, xy, xθ, yy, yθ, θθ), action
+            units (0 off the tree).
         step: ``(G, E+1, 3)`` Δ_GN = −(H + μI)⁻¹ g, action units (0 off the tree).
         local_f: ``(G,)`` the agent's current local F = Σ ‖W r‖².
     """
@@ -61,7 +62,7 @@ class BaseModel(NamedTuple):
 
 
 MODEL_FEATURES = 9  # observed per edge: g / F (3) and the upper triangle of H / F (6)
-UPPER = (0, 1, 2, 4, 5, 8)  # flat indices of a 3 × 3 matrix's upper triangle
+UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the order of the upper triangle
 
 
 def observed_model(model: BaseModel) -> torch.Tensor:
@@ -69,43 +70,59 @@ def observed_model(model: BaseModel) -> torch.Tensor:
     ``[g / F, upper(H) / F]``, so that ``−(2 gᵀΔ + ΔᵀHΔ) / F`` is the predicted fraction of the
     local F a correction Δ removes (the step reward's argument, envs.core)."""
     scale = (model.local_f + 1e-12)[:, None, None]
-    upper = model.hessian.flatten(-2)[..., list(UPPER)]
-    return torch.cat([model.gradient, upper], -1) / scale
+    return torch.cat([model.gradient, model.hessian], -1) / scale
 
 
-def _skew(xy: torch.Tensor) -> torch.Tensor:
-    """``S t`` = (−y, x) of ``(..., 2)`` points."""
-    return torch.stack([-xy[..., 1], xy[..., 0]], -1)
+def upper_to_matrix(upper: torch.Tensor) -> torch.Tensor:
+    """``(..., 3, 3)`` the symmetric matrix of an ``(..., 6)`` upper triangle (:data:`UPPER`)."""
+    xx, xy, xt, yy, yt, tt = upper.unbind(-1)
+    rows = [[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]]
+    return torch.stack([torch.stack(row, -1) for row in rows], -2)
 
 
-def _rotation_transpose(theta: torch.Tensor) -> torch.Tensor:
-    """``(..., 2, 2)`` R(θ)ᵀ."""
+def matrix_parts(matrices: torch.Tensor) -> torch.Tensor:
+    """``(3, 3, ...)`` contiguous components of ``(..., 3, 3)`` matrices (fast elementwise use)."""
+    return matrices.permute(
+        matrices.dim() - 2, matrices.dim() - 1, *range(matrices.dim() - 2)
+    ).contiguous()
+
+
+def _rotate(theta: torch.Tensor, xy: torch.Tensor, transpose: bool = False) -> torch.Tensor:
+    """``R(θ) xy`` (or ``R(θ)ᵀ xy``) of ``(..., 2)`` vectors."""
     c, s = torch.cos(theta), torch.sin(theta)
-    return torch.stack([torch.stack([c, s], -1), torch.stack([-s, c], -1)], -2)
+    s = -s if transpose else s
+    return torch.stack([c * xy[..., 0] - s * xy[..., 1], s * xy[..., 0] + c * xy[..., 1]], -1)
 
 
-def _twist_jacobian(rotation_t: torch.Tensor, lever: torch.Tensor) -> torch.Tensor:
-    """``(..., 3, 3)`` [[Rᵀ, Rᵀ S t], [0, 0, 1]] for ``rotation_t (..., 2, 2)``, ``t (..., 2)``."""
-    top = torch.cat([rotation_t, (rotation_t @ _skew(lever).unsqueeze(-1))], -1)
-    bottom = torch.zeros_like(top[..., :1, :])
-    bottom[..., 0, 2] = 1.0
-    return torch.cat([top, bottom], -2)
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Dot product over a last axis of 2 (written out: a reduction over 2 entries is slower)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
-def _inverse_twist_jacobian(jacobian: torch.Tensor) -> torch.Tensor:
-    """The inverse [[R, −S t], [0, 0, 1]] of :func:`_twist_jacobian`'s [[Rᵀ, Rᵀ S t], [0, 0, 1]]."""
-    rotation = jacobian[..., :2, :2].transpose(-1, -2)
-    inverse = torch.zeros_like(jacobian)
-    inverse[..., :2, :2] = rotation
-    inverse[..., :2, 2:] = -(rotation @ jacobian[..., :2, 2:])
-    inverse[..., 2, 2] = 1.0
-    return inverse
+def _apply(parts: torch.Tensor, vector: list, transpose: bool = False) -> list:
+    """``M v`` (or ``Mᵀ v``) for matrices given by their components ``parts (3, 3, ...)``
+    (:func:`matrix_parts`) and a vector given as three component tensors, written out (batched
+    3 × 3 products on strided views are several times slower)."""
+    if transpose:
+        return [sum(parts[j, i] * vector[j] for j in range(3)) for i in range(3)]
+    return [sum(parts[i, j] * vector[j] for j in range(3)) for i in range(3)]
+
+
+def _congruence(parts: torch.Tensor, h: dict) -> list:
+    """The upper triangle (:data:`UPPER`) of ``Aᵀ H A``, ``A`` by its components ``parts`` and the
+    symmetric ``H`` by its entries ``h[(i, j)]`` (i ≤ j), written out."""
+
+    def entry(i: int, j: int) -> torch.Tensor:
+        return h[(min(i, j), max(i, j))]
+
+    ha = [[sum(entry(i, j) * parts[j, k] for j in range(3)) for k in range(3)] for i in range(3)]
+    return [sum(parts[j, i] * ha[j][k] for j in range(3)) for i, k in UPPER]
 
 
 def _subtree_sums(values: torch.Tensor, position: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
     """``(G, V+1, k)`` Σ over each vertex's subtree of per-vertex ``values (G, V+1, k)``
     (positions form a permutation of 0..V, every subtree is ``[position, end)``)."""
-    g, slots, k = values.shape
+    k = values.shape[-1]
     ordered = torch.zeros_like(values).scatter_(1, position.unsqueeze(-1).expand(-1, -1, k), values)
     prefix = torch.cat([torch.zeros_like(ordered[:, :1]), ordered.cumsum(1)], 1)  # (G, V+2, k)
     upper = torch.gather(prefix, 1, end.unsqueeze(-1).expand(-1, -1, k))
@@ -115,55 +132,79 @@ def _subtree_sums(values: torch.Tensor, position: torch.Tensor, end: torch.Tenso
 
 def base_model(core: PGOCore) -> BaseModel:
     """The quadratic model and Gauss–Newton step of every edge slot of every agent (module
-    docstring), from the core's current poses and residuals."""
+    docstring), from the core's current poses and residuals.
+
+    Written out for the blocks: with ``R_a`` orthonormal, ``h_m = Kᵀ W² K`` is
+    ``[[τ I, τ S t_b], [·, τ ‖t_b‖² + κ]]`` (four numbers) and ``u_m = [τ R_a r_t,
+    (S t_b)·(τ R_a r_t) + κ r_θ]``; so H_ξ is ``[[α I, β], [βᵀ, γ]]`` and, with
+    ``m = −S t_q``, ``H_c = [[α I, R_pᵀ(α m + β)], [·, α ‖m‖² + 2 β·m + γ]]``,
+    ``g_c = s_c [R_pᵀ g_t, m·g_t + g_θ]``, solved by its Schur complement."""
     t = core.tensors
     g = core.batch * core.num_agents
     slots = core.dims.vertices + 1
     poses = t["poses"].view(g, -1, 3)
     tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
     tau, kappa = t["tau"].view(g, -1), t["kappa"].view(g, -1)
-    weight = torch.stack([tau, tau, kappa], -1)  # (G, E+1, 3): W²
     r = t["residuals"].view(g, -1, 3)
-    local_f = (weight * r * r).sum((-1, -2))
+    local_f = (tau * _dot(r, r) + kappa * r[..., 2] ** 2).sum(-1)
     origin = poses[:, :1, :2]
     x_tail, x_head = _gather_rows(poses, tails), _gather_rows(poses, heads)
-    k_edge = _twist_jacobian(_rotation_transpose(x_tail[..., 2]), x_head[..., :2] - origin)
-    weighted = weight.unsqueeze(-1) * k_edge  # W² K
-    u = (weighted * r.unsqueeze(-1)).sum(-2)  # Kᵀ W² r, (G, E+1, 3)
-    h = (k_edge.transpose(-1, -2) @ weighted).flatten(-2)  # Kᵀ W² K, (G, E+1, 9)
+    head_xy = x_head[..., :2] - origin
+    lever = torch.stack([-head_xy[..., 1], head_xy[..., 0]], -1)  # S t_b
+    pull = tau.unsqueeze(-1) * _rotate(x_tail[..., 2], r[..., :2])  # τ R_a r_t
+    u = torch.cat([pull, (_dot(lever, pull) + kappa * r[..., 2]).unsqueeze(-1)], -1)
+    h = torch.stack(
+        [tau, tau * lever[..., 0], tau * lever[..., 1], tau * _dot(head_xy, head_xy) + kappa], -1
+    )
 
     def scatter(index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
         k = values.shape[-1]
         out = values.new_zeros(g, slots, k)
         return out.scatter_add_(1, index.unsqueeze(-1).expand(-1, -1, k), values)
 
-    phi = scatter(heads, u) - scatter(tails, u)
-    chi = scatter(heads, h) + scatter(tails, h)
+    per_vertex = torch.cat([scatter(heads, u) - scatter(tails, u), scatter(heads, h)], -1)
+    per_vertex[..., 3:] += scatter(tails, h)
     if core.correction == "subtree":
+        per_vertex[..., 3:] -= 2.0 * scatter(t["lca"].view(g, -1), h)
         position, end = t["tree_position"].view(g, -1), t["tree_end"].view(g, -1)
-        psi = scatter(t["lca"].view(g, -1), h)
-        phi = _subtree_sums(phi, position, end)
-        chi = _subtree_sums(chi, position, end) - 2.0 * _subtree_sums(psi, position, end)
+        per_vertex = _subtree_sums(per_vertex, position, end)
         mover = t["mover"].view(g, -1)
         on_tree = t["tree_edge"].view(g, -1)
     else:
         mover = heads
         on_tree = torch.arange(tails.shape[1], device=core.device) < core.dims.edges
-    g_twist = _gather_rows(phi, mover)  # (G, E+1, 3)
-    h_twist = _gather_rows(chi, mover).view(g, -1, 3, 3)
-    sign = torch.where(mover == heads, 1.0, -1.0).to(poses.dtype).unsqueeze(-1)
-    p_c = _inverse_twist_jacobian(k_edge)  # [[R_p, −S t_q], [0, 1]] = K_c⁻¹
-    gradient = sign * (p_c.transpose(-1, -2) @ g_twist.unsqueeze(-1)).squeeze(-1)
-    hessian = p_c.transpose(-1, -2) @ h_twist @ p_c
-    if core.action_scale == "whitened":
-        inverse_root = t["inverse_sqrt_information"].view(g, -1, 3, 3)
-        gradient = (inverse_root.transpose(-1, -2) @ gradient.unsqueeze(-1)).squeeze(-1)
-        hessian = inverse_root.transpose(-1, -2) @ hessian @ inverse_root
-    keep = on_tree.unsqueeze(-1)
-    gradient = torch.where(keep, gradient, torch.zeros_like(gradient))
-    hessian = torch.where(keep.unsqueeze(-1), hessian, torch.zeros_like(hessian))
-    scale = hessian.diagonal(dim1=-2, dim2=-1).amax(-1).clamp_min(1.0)
-    eye = torch.eye(3, dtype=poses.dtype, device=core.device)
-    damped = hessian + DAMPING * scale[..., None, None] * eye
-    step = -torch.linalg.solve(damped, gradient.unsqueeze(-1)).squeeze(-1)
-    return BaseModel(gradient, hessian, torch.where(keep, step, torch.zeros_like(step)), local_f)
+    sums = _gather_rows(per_vertex, mover)  # (G, E+1, 7): g_ξ (3), α, β (2), γ
+    alpha, beta, gamma = sums[..., 3], sums[..., 4:6], sums[..., 6]
+    sign = torch.where(mover == heads, 1.0, -1.0).to(poses.dtype)
+    theta_p = x_tail[..., 2]
+    m = -lever  # −S t_q (the candidate's head is its own row's head)
+    coupling = _rotate(theta_p, alpha.unsqueeze(-1) * m + beta, transpose=True)
+    angular = alpha * _dot(m, m) + 2 * _dot(beta, m) + gamma
+    g_t = sign.unsqueeze(-1) * _rotate(theta_p, sums[..., :2], transpose=True)
+    g_theta = sign * (_dot(m, sums[..., :2]) + sums[..., 2])
+    zero = torch.zeros_like(alpha)
+    entries = [alpha, zero, coupling[..., 0], alpha, coupling[..., 1], angular]
+    h_c = dict(zip(UPPER, entries, strict=True))
+    # Gauss–Newton step (metric), damped by μ relative to the largest diagonal entry (at least 1)
+    mu = DAMPING * torch.maximum(alpha, angular).clamp_min(1.0)
+    a_damped, d_damped = alpha + mu, angular + mu
+    step_theta = (-g_theta + _dot(coupling, g_t) / a_damped) / (
+        d_damped - _dot(coupling, coupling) / a_damped
+    )
+    step_t = (-g_t - coupling * step_theta.unsqueeze(-1)) / a_damped.unsqueeze(-1)
+    step = [step_t[..., 0], step_t[..., 1], step_theta]
+    gradient = [g_t[..., 0], g_t[..., 1], g_theta]
+    hessian = [h_c[key] for key in UPPER]
+    if core.action_scale == "whitened":  # Δ_w = Λ^½ Δ, g_w = Aᵀ g, H_w = Aᵀ H A (A = Λ^−½)
+        root = t["sqrt_information_parts"].view(3, 3, g, -1)
+        inverse_root = t["inverse_sqrt_information_parts"].view(3, 3, g, -1)
+        step = _apply(root, step)
+        gradient = _apply(inverse_root, gradient, transpose=True)
+        hessian = _congruence(inverse_root, h_c)
+    keep = on_tree.to(poses.dtype)
+    return BaseModel(
+        torch.stack(gradient, -1) * keep.unsqueeze(-1),
+        torch.stack(hessian, -1) * keep.unsqueeze(-1),
+        torch.stack(step, -1) * keep.unsqueeze(-1),
+        local_f,
+    )

@@ -68,7 +68,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from envs.basestep import BaseModel, base_model
+from envs.basestep import BaseModel, base_model, matrix_parts
 from envs.geometry import (
     _gather_rows,
     _offset,
@@ -267,6 +267,9 @@ class PGOCore:
                 replaced[index] = value
                 self.tensors[key] = replaced
         self._cache_edge_index()
+        for key in ("sqrt_information", "inverse_sqrt_information"):  # for envs.basestep
+            t = self.tensors
+            t[f"{key}_parts"] = matrix_parts(t[key].flatten(0, 1))
         for problem, element in zip(problems, elements, strict=True):
             self.problems[element] = problem
         self._restart(torch.as_tensor(elements, device=self.device))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from envs.basestep import upper_to_matrix
 from envs.core import PGOCore
 from envs.geometry import _gather_rows, residuals
 from envs.observation import Dimensions
@@ -79,7 +80,7 @@ def test_base_gradient_matches_finite_differences(modes: dict) -> None:
         checked += int(real.sum())
     assert checked > 20
     # Gauss–Newton: the step solves H Δ = −g and lowers the local F of every tree edge's agent
-    h, grad, step = model.hessian, model.gradient, model.step
+    h, grad, step = upper_to_matrix(model.hessian), model.gradient, model.step
     assert torch.allclose((h @ step.unsqueeze(-1)).squeeze(-1), -grad, atol=1e-6 * grad.abs().max())
 
 
