@@ -161,7 +161,8 @@ class PGOCore:
         ``"none"``: the action's ``Δ`` is the correction. ``"gauss-newton"``: a residual action —
         the environment first computes one Gauss–Newton step on the chosen edge (the Δ of
         :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
-        and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step.
+        and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step; in the
+        whitened scale ``Δ`` is in units of the move's own σ (:func:`envs.sweep.base_action`).
     """
 
     def __init__(
@@ -334,9 +335,9 @@ class PGOCore:
         head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            from envs.sweep import gauss_newton_delta
+            from envs.sweep import base_action
 
-            delta = delta + gauss_newton_delta(self, edge)
+            delta = base_action(self, edge, delta)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t["loss"].clone()
         if self.correction == "subtree":

@@ -142,11 +142,12 @@ class Expert:
 
     def actor_delta(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` float32: the actor output that makes the core execute the expert's Δ
-        on ``edge (B, n)`` — the expert's Δ itself, or its difference from the Gauss–Newton
-        base step when the core adds one (``base="gauss-newton"``); not clipped."""
+        on ``edge (B, n)`` — the expert's Δ itself, or, when the core adds the Gauss–Newton
+        base step (``base="gauss-newton"``), the residual that executes it
+        (:func:`envs.sweep.base_residual`); not clipped."""
         delta = self.delta(edge)
         if self.core.base == "gauss-newton":
-            from envs.sweep import gauss_newton_delta
+            from envs.sweep import base_residual
 
-            delta = delta - gauss_newton_delta(self.core, edge)
+            delta = base_residual(self.core, edge, delta)
         return delta.to(torch.float32)

@@ -266,7 +266,7 @@ def test_gauss_newton_sweep_lowers_local_F() -> None:
 def test_gauss_newton_base_adds_one_sweep_step_to_the_action() -> None:
     """base="gauss-newton": a zero action executes the sweep's Δ (the same episode as the sweep
     policy in a plain core); the expert's residual on top of it executes the expert's Δ."""
-    from envs.sweep import gauss_newton_delta
+    from envs.sweep import base_residual
 
     problems = [make_problem(seed=seed, **SMALL) for seed in (15, 16)]
     modes = {"correction": "subtree", "action_scale": "whitened", "reward": "F"}
@@ -283,7 +283,7 @@ def test_gauss_newton_base_adds_one_sweep_step_to_the_action() -> None:
     for _ in range(int(expert_core.tensors["num_edges"].max())):
         edge, delta = expert.act()
         expert_core.step(edge, delta)
-        residual = residual_expert.delta(edge) - gauss_newton_delta(residual_core, edge)
+        residual = base_residual(residual_core, edge, residual_expert.delta(edge))
         residual_core.step(edge, residual)
     assert torch.allclose(expert_core.tensors["poses"], residual_core.tensors["poses"], atol=1e-9)
     with pytest.raises(ValueRangeError, match="gauss-newton"):
