@@ -42,8 +42,9 @@ Result fields
     estimate after the episode; F_actor and F_aligned, the same with the robots whose episode did
     not lower their local objective back at their start (the consensus's input), and after the
     alignment; F_consensus, F of the consensus's output; kept, "consensus" or "episode" (which
-    of the two is returned); robots_kept_episode, the number of robots that kept their episode's
-    result, and robots_reverted, the others.
+    of the two is returned); local_F_start and local_F_episode, the robots' local objectives
+    summed, at the start and after the episode; robots_kept_episode, the number of robots that
+    kept their episode's result, and robots_reverted, the others.
 Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
     callers pass a Budget for every method); `budget.seconds`, if given, stops the episode early.
 """
@@ -284,6 +285,8 @@ def solve_prop_v1(
             "F_aligned": reconciled.F_aligned,
             "F_consensus": consensus_costs.F,
             "kept": kept,
+            "local_F_start": float(episode.start_local_F.sum()),
+            "local_F_episode": float(episode.local_F.sum()),
             "robots_kept_episode": int(episode.kept().sum()),
             "robots_reverted": [int(r) for r in np.flatnonzero(~episode.kept())],
             "consensus_iterations": reconciled.iterations,
