@@ -7,20 +7,24 @@ prop-v1
        step (the environment's dynamics, envs.core.PGOCore with the measurement reward).
        The robots' actors are batched into one forward per step and run incrementally
        (agents.inference.IncrementalPolicy: only the L-hop neighbourhood of the moved poses is
-       recomputed).
+       recomputed). A robot keeps its episode's result only where the episode lowered its local
+       objective (F of its local graph with its own copies), else its start copy
+       (docs/never_worse.md).
     2. The consensus (popbench.reconcile, `consensus=`): information-weighted ADMM over the
        separators (popbench.consensus; the paper's), by default after a rigid alignment of the
        robots' frames (popbench.alignment, "aligned-admm"; docs/consensus.md for the choice of
-       the default); the global estimate is its output.
+       the default); the global estimate is its output where that lowered F below its input's
+       (the kept copies assembled, each pose from its owner), else that input. The registry
+       (popbench.methods.never_worse) returns the start where even that is above it.
 prop-v2
     prop-v1, then 75 Levenberg–Marquardt iterations (popbench.solvers.lm) from its output.
 
 Result fields
     iterations = T (actor steps). history = F of the robots' copies after each step, counted
     edge by edge with each inter-robot edge half from each of its two robots (so history[0] is
-    F at the start), with the final entry replaced by F after consensus; history_s the makespan
-    at each entry (the setup / n plus the steps' step_s / n so far, the final entry also the
-    consensus's, so it equals parallel_s). prop-v2 appends F after each LM step, at prop-v1's
+    F at the start), with the final entry replaced by F of the returned estimate; history_s the
+    makespan at each entry (the setup / n plus the steps' step_s / n so far, the final entry also
+    the consensus's, so it equals parallel_s). prop-v2 appends F after each LM step, at prop-v1's
     parallel_s plus the LM's wall time so far (its last entry: parallel_s). inlier_mask: an edge is
     an outlier when its layer-averaged gate is ≤ 0.5 in *either* robot that holds it (an
     inter-robot edge is seen by two robots; one flag suffices) — the gate of the checkpoint's
@@ -34,8 +38,13 @@ Result fields
     time plus its share of the batched vectorised pass) and the alignment's wall time (one small
     solve). prop-v2 adds LM's wall time (centralised) to prop-v1's times, also when it starts
     from prop-v1's cached cell (popbench.harness.refining). extras: actor_s (setup + steps) and
-    consensus_s (alignment + ADMM), the split of wall_s [s]; F_actor and F_aligned, F of the
-    assembled estimate after the episode and after the alignment.
+    consensus_s (alignment + ADMM), the split of wall_s [s]; F_episode, F of the assembled
+    estimate after the episode; F_actor and F_aligned, the same with the robots whose episode did
+    not lower their local objective back at their start (the consensus's input), and after the
+    alignment; F_consensus, F of the consensus's output; kept, "consensus" or "episode" (which
+    of the two is returned); local_F_start and local_F_episode, the robots' local objectives
+    summed, at the start and after the episode; robots_kept_episode, the number of robots that
+    kept their episode's result, and robots_reverted, the others.
 Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
     callers pass a Budget for every method); `budget.seconds`, if given, stops the episode early.
 """
@@ -78,6 +87,9 @@ class Episode:
         history: (T + 1,) F of the copies after each step (module docstring).
         step_s: (T,) wall time of each batched step [s].
         setup_s: packing the problem and the first full GNN pass [s].
+        start_poses: each robot's local copy at the episode's start (separators placed).
+        start_local_F, local_F: (n,) each robot's local objective (F of its local graph, its
+            own copies) at the start and after the episode.
     """
 
     local_poses: list[np.ndarray]
@@ -85,6 +97,23 @@ class Episode:
     history: np.ndarray
     step_s: np.ndarray
     setup_s: float
+    start_poses: list[np.ndarray]
+    start_local_F: np.ndarray
+    local_F: np.ndarray
+
+    def kept(self) -> np.ndarray:
+        """(n,) bool: the robot's episode lowered its local objective (prop-v1 keeps its
+        result; else its start)."""
+        return self.local_F < self.start_local_F
+
+    def kept_poses(self) -> list[np.ndarray]:
+        """Each robot's result where :meth:`kept`, else its start copy."""
+        return [
+            poses if keep else start
+            for poses, start, keep in zip(
+                self.local_poses, self.start_poses, self.kept(), strict=True
+            )
+        ]
 
 
 @lru_cache(maxsize=4)
@@ -163,6 +192,8 @@ def run_episode(
         return float((t["costs"][0][:, :num_edges] * share).sum())
 
     history = [copies_objective()]
+    start_poses = [poses.copy() for poses in core.local_poses(0)]  # views of the live state
+    start_local_F = t["loss"][0].numpy().copy()
     setup_s = time.perf_counter() - start
     step_s = []
     horizon = int(t["num_edges"].max())
@@ -184,7 +215,16 @@ def run_episode(
             break
 
     gate = holder_minimum(policy.gate_means(), edge_ids, edge_mask, problem.graph.num_edges)
-    return Episode(core.local_poses(0), gate, np.array(history), np.array(step_s), setup_s)
+    return Episode(
+        core.local_poses(0),
+        gate,
+        np.array(history),
+        np.array(step_s),
+        setup_s,
+        start_poses,
+        start_local_F,
+        t["loss"][0].numpy().copy(),
+    )
 
 
 def solve_prop_v1(
@@ -220,10 +260,15 @@ def solve_prop_v1(
     with torch.no_grad():
         episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done, task=task)
     graph = problem.graph
-    reconciled = reconcile(problem, episode.local_poses, consensus, consensus_iterations)
-    gate, threshold = flag_gate(problem, episode, reconciled.poses, checkpoint, task, device)
+    local_poses = episode.kept_poses()
+    reconciled = reconcile(problem, local_poses, consensus, consensus_iterations)
+    poses, kept = reconciled.poses, "consensus"
+    costs = consensus_costs = objective.evaluate(graph, poses)
+    if not consensus_costs.F < reconciled.F_before:  # the consensus did not lower F: its input
+        poses, kept = problem.assemble(local_poses), "episode"
+        costs = objective.evaluate(graph, poses)
+    gate, threshold = flag_gate(problem, episode, poses, checkpoint, task, device)
     inlier_mask = gate > threshold
-    costs = objective.evaluate(graph, reconciled.poses)
     history = episode.history.copy()
     history[-1] = costs.F
     n = problem.num_robots
@@ -231,7 +276,7 @@ def solve_prop_v1(
     history_s = (episode.setup_s + np.concatenate([[0.0], np.cumsum(episode.step_s)])) / n
     history_s[-1] += reconciled.parallel_s
     return Result(
-        poses=reconciled.poses,
+        poses=poses,
         **costs._asdict(),  # F, F_chordal, chi2
         wall_s=time.perf_counter() - started,
         parallel_s=float(history_s[-1]),
@@ -242,8 +287,15 @@ def solve_prop_v1(
         messages=reconciled.messages,
         extras={
             "F_init": objective.objective(graph, graph.poses),
+            "F_episode": objective.objective(graph, problem.assemble(episode.local_poses)),
             "F_actor": reconciled.F_before,
             "F_aligned": reconciled.F_aligned,
+            "F_consensus": consensus_costs.F,
+            "kept": kept,
+            "local_F_start": float(episode.start_local_F.sum()),
+            "local_F_episode": float(episode.local_F.sum()),
+            "robots_kept_episode": int(episode.kept().sum()),
+            "robots_reverted": [int(r) for r in np.flatnonzero(~episode.kept())],
             "consensus_iterations": reconciled.iterations,
             "consensus_converged": reconciled.converged,
             "step_ms_mean": 1e3 * float(episode.step_s.mean()) if episode.step_s.size else 0.0,

@@ -16,7 +16,7 @@ Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + AD
 mm-pgo's 1000 iterations (baselines.mm_pgo.solve, from the same odometry start), with
 F, wall and simulated parallel time, the wall-time ratio mm-pgo / prop-v1 and prop-v1's split of
 its wall time: the actor episode (the actor's decisions, IncrementalPolicy.act; the environment
-step, PGOCore.step, of which the Gauss–Newton base step, envs.sweep.gauss_newton_delta; the
+step, PGOCore.step, of which the Gauss–Newton base step, envs.basestep.base_model; the
 incremental observation, PGOCore.observation_update + IncrementalPolicy.observe_update) and the
 consensus (of which SuperLU's factorisations, splu in popbench.consensus_system), measured by
 wrapping those functions with timers for the run.
@@ -104,7 +104,7 @@ PHASES = (
     ("actor: observation update", "agents.inference", "IncrementalPolicy.observe_update"),
     ("actor: observation update", "envs.core", "PGOCore.observation_update"),
     ("env step (PGOCore.step)", "envs.core", "PGOCore.step"),
-    ("  of which Gauss–Newton base", "envs.sweep", "gauss_newton_delta"),
+    ("  of which Gauss–Newton base", "envs.basestep", "base_model"),
     ("consensus: SuperLU splu", "popbench.consensus_system", "splu"),
 )
 

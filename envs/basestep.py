@@ -51,7 +51,8 @@ class BaseModel(NamedTuple):
         gradient: ``(G, E+1, 3)`` g_c (F ≈ F₀ + 2 gᵀΔ + ΔᵀHΔ), action units (0 off the tree).
         hessian: ``(G, E+1, 6)`` the upper triangle of H_c (xx, xy, xθ, yy, yθ, θθ), action
             units (0 off the tree).
-        step: ``(G, E+1, 3)`` Δ_GN = −(H + μI)⁻¹ g, action units (0 off the tree).
+        step: ``(G, E+1, 3)`` Δ_GN = −(H + μI)⁻¹ g, shortened along its direction where it
+            exceeds the action bound or Δmax, action units (0 off the tree).
         local_f: ``(G,)`` the agent's current local F = Σ ‖W r‖².
     """
 
@@ -117,6 +118,13 @@ def _congruence(parts: torch.Tensor, h: dict) -> list:
 
     ha = [[sum(entry(i, j) * parts[j, k] for j in range(3)) for k in range(3)] for i in range(3)]
     return [sum(parts[j, i] * ha[j][k] for j in range(3)) for i, k in UPPER]
+
+
+def _fit(vector: list, bound: torch.Tensor) -> torch.Tensor:
+    """The largest factor ≤ 1 that brings every component of ``vector`` (three tensors) within
+    ``±bound (3,)``."""
+    ratios = [bound[i] / component.abs().clamp_min(1e-300) for i, component in enumerate(vector)]
+    return torch.minimum(torch.minimum(ratios[0], ratios[1]), ratios[2]).clamp(max=1.0)
 
 
 def _subtree_sums(values: torch.Tensor, position: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
@@ -193,14 +201,19 @@ def base_model(core: PGOCore) -> BaseModel:
     )
     step_t = (-g_t - coupling * step_theta.unsqueeze(-1)) / a_damped.unsqueeze(-1)
     step = [step_t[..., 0], step_t[..., 1], step_theta]
+    # shortened along its direction to fit Δmax (and below, the whitened bound): the core's
+    # componentwise clip would turn an anisotropic step off its descent direction
+    fit = _fit(step, core.delta_max)
     gradient = [g_t[..., 0], g_t[..., 1], g_theta]
     hessian = [h_c[key] for key in UPPER]
     if core.action_scale == "whitened":  # Δ_w = Λ^½ Δ, g_w = Aᵀ g, H_w = Aᵀ H A (A = Λ^−½)
         root = t["sqrt_information_parts"].view(3, 3, g, -1)
         inverse_root = t["inverse_sqrt_information_parts"].view(3, 3, g, -1)
         step = _apply(root, step)
+        fit = torch.minimum(fit, _fit(step, core.action_bound))
         gradient = _apply(inverse_root, gradient, transpose=True)
         hessian = _congruence(inverse_root, h_c)
+    step = [component * fit for component in step]
     keep = on_tree.to(poses.dtype)
     return BaseModel(
         torch.stack(gradient, -1) * keep.unsqueeze(-1),

@@ -165,7 +165,8 @@ class PGOCore:
         ``"none"``: the action's ``Δ`` is the correction. ``"gauss-newton"``: a residual action —
         the environment first computes one Gauss–Newton step on the chosen edge (the Δ of
         :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
-        and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step.
+        and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step; in the
+        whitened scale ``Δ`` is in units of the chosen edge's σ.
     """
 
     def __init__(

@@ -8,11 +8,18 @@ the core never imports ``baselines``, ``agents`` or ``envs``, and ``popbench --h
 fast), and the facts the harness, the cache, the reports and the CLI read — its table label, the
 checkpoint its results depend on, its capabilities. Adding a method = one solve function + one
 record in :data:`METHODS` (+ tests); nothing else names methods.
+
+Never worse than the start: :func:`get_method` hands out every solve function wrapped by
+:func:`never_worse`, so no registered method returns an estimate whose F (eq. 1) is above F of
+the start it was given — it returns the start instead and says so in ``extras["never_worse"]``.
+On a problem with injected outliers the rule is not applied (F counts the outliers' residuals,
+which a robust method rightly leaves large); docs/never_worse.md has the choice.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -22,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from popbench import objective
 from popbench.errors import ValueRangeError
 
 
@@ -272,9 +280,48 @@ def load_object(path: str) -> Any:
 
 
 def get_method(name: str) -> Method:
-    """The ``solve`` function registered under ``name``."""
+    """The ``solve`` function registered under ``name``, wrapped by :func:`never_worse`."""
     record = method_record(name)
     try:
-        return load_object(record.solve)
+        return never_worse(load_object(record.solve))
     except ModuleNotFoundError as error:
         raise ValueRangeError("method", name, f"an implemented method ({error})") from None
+
+
+def never_worse(solve: Method) -> Method:
+    """``solve`` (same signature) returning the problem's start instead of its estimate where
+    the estimate's F is above F of the start, ``problem.graph.poses``.
+
+    ``extras["never_worse"]`` says which was returned: ``"method"``, ``"start"`` (then
+    ``extras["F_method"]`` is the estimate's F, and the last ``history`` entry the start's cost
+    in ``history_objective`` units; times, iterations and the inlier mask stay the method's), or
+    ``"not applied"`` on a problem with injected outliers (``problem.outlier_mask`` flags some
+    edge), where F counts the outliers' residuals (module docstring)."""
+
+    @functools.wraps(solve)
+    def guarded(problem: Any, *args: Any, **kwargs: Any) -> Result:
+        result = solve(problem, *args, **kwargs)
+        return keep_better(problem, result)
+
+    return guarded
+
+
+def keep_better(problem: Any, result: Result) -> Result:
+    """``result``, or the start of ``problem`` (a DistributedProblem) where ``result.F`` is above
+    the start's F (:func:`never_worse` for the extras it writes)."""
+    mask = getattr(problem, "outlier_mask", None)
+    if mask is not None and bool(np.any(mask)):
+        result.extras["never_worse"] = "not applied"
+        return result
+    start = problem.graph.poses
+    costs = objective.evaluate(problem.graph, start)
+    if not result.F > costs.F:
+        result.extras["never_worse"] = "method"
+        return result
+    history = np.array(result.history, dtype=float, copy=True)
+    if history.size:
+        history[-1] = costs.F_chordal if result.history_objective == "F_chordal" else costs.F
+    extras = {**result.extras, "never_worse": "start", "F_method": result.F}
+    return dataclasses.replace(
+        result, poses=np.array(start, copy=True), **costs._asdict(), history=history, extras=extras
+    )

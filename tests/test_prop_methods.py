@@ -183,6 +183,39 @@ def test_prop_v1_aligns_the_frames_before_the_consensus(problem, tiny_checkpoint
     assert "consensus" in method_options("prop-v2")
 
 
+def test_prop_v1_keeps_what_lowered_the_objective(problem, tiny_checkpoint: Path) -> None:
+    """A robot keeps its episode's copy only where the episode lowered its local F (F of its
+    local graph with its own copies), else its start copy; the consensus's output is returned
+    only where it lowered F below the assembled kept copies (docs/never_worse.md)."""
+    from agents.methods import cached_actor, run_episode
+
+    actor, task = cached_actor(str(tiny_checkpoint), "cpu")
+    with torch.no_grad():
+        episode = run_episode(actor, problem, task=task)
+    graphs = [local.graph for local in problem.local_graphs]
+    for copies, local_f in (
+        (episode.start_poses, episode.start_local_F),
+        (episode.local_poses, episode.local_F),
+    ):
+        measured = list(map(objective.objective, graphs, copies))
+        np.testing.assert_allclose(local_f, measured, rtol=1e-9, atol=1e-12)
+    kept = episode.kept()
+    assert not kept.all()  # the random actor raises some robot's local F: the rule is exercised
+    for keep, chosen, start, moved in zip(
+        kept, episode.kept_poses(), episode.start_poses, episode.local_poses, strict=True
+    ):
+        np.testing.assert_array_equal(chosen, moved if keep else start)
+    result = solve_prop_v1(problem, Budget(), checkpoint=tiny_checkpoint)
+    assert result.extras["robots_kept_episode"] == int(kept.sum())
+    assert result.extras["robots_reverted"] == [int(r) for r in np.flatnonzero(~kept)]
+    assert result.extras["F_actor"] == pytest.approx(
+        objective.objective(problem.graph, problem.assemble(episode.kept_poses()))
+    )
+    returned = {"consensus": result.extras["F_consensus"], "episode": result.extras["F_actor"]}
+    assert result.F == pytest.approx(returned[result.extras["kept"]])
+    assert result.F == pytest.approx(min(returned.values()))
+
+
 def test_registry_and_the_problem_start(problem, tiny_checkpoint: Path) -> None:
     solve = get_method("prop-v1")
     chordal = with_start(problem, "chordal")

@@ -15,14 +15,16 @@ from popbench.cli import main
 from popbench.harness.cache import cell_key, provenance
 from popbench.harness.reports import number
 from popbench.harness.table1 import Table1Config
+from popbench.initial import with_start
 from popbench.metrics import mean_ci
 
 
 def solve_toy(problem, budget, seed: int = 0, step: float = 0.5, **_) -> methods.Result:
-    """The toy method: one plain gradient-free move, halfway from the start to the odometry
-    composition (a real method would iterate); it only has to honour the interface."""
+    """The toy method: one plain gradient-free move, halfway from the start to the chordal
+    estimate (a real method would iterate; a move that raised F would be replaced by the start,
+    popbench.methods.never_worse); it only has to honour the interface."""
     start = problem.graph.poses
-    poses = start + step * (problem.graph.odometry_initial() - start)
+    poses = start + step * (with_start(problem.graph, "chordal").poses - start)
     costs = objective.evaluate(problem.graph, poses)
     budget.round_done(1)
     history = np.array([objective.objective(problem.graph), costs.F])
@@ -73,7 +75,9 @@ def solve_toy_learned(problem, budget, checkpoint: str | None = None, **_) -> me
 @pytest.fixture
 def toy_learned(monkeypatch: pytest.MonkeyPatch, tmp_path) -> list[Path]:
     actors = [tmp_path / f"step-s{seed}.txt" for seed in range(3)]
-    for actor, step in zip(actors, ("0.5", "0.25", "0.75"), strict=True):
+    # steps whose estimates are all below the start's F on the test's ring (0.25 and 0.5 are
+    # above it: the registry would return the start for both, popbench.methods.never_worse)
+    for actor, step in zip(actors, ("0.9", "0.95", "0.75"), strict=True):
         actor.write_text(step)
     record = methods.MethodRecord(
         "toy-learned",
@@ -91,7 +95,7 @@ def test_a_learned_method_runs_once_per_training_seed_in_table_i(toy_learned, tm
     graph = ring_g2o(tmp_path / "ring.g2o", n=12)
     out = tmp_path / "table"
     args = ["run", "table1", "--datasets", str(graph), "--robots", "2", "--jobs", "1"]
-    args += ["--methods", "toy-learned,mm-pgo", "--iterations", "5", "--init", "chordal"]
+    args += ["--methods", "toy-learned,mm-pgo", "--iterations", "5"]
     args += ["--out", str(out)]
     assert main([*args, "--training-seeds", "0,1,2"]) == 0
     frame = pd.read_csv(out / "table1.csv")
