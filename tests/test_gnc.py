@@ -34,6 +34,17 @@ def test_edge_weights_scale_the_cost(small_graph):
         solve_graph(small_graph, small_graph.poses, 5, edge_weights=np.ones(3))
 
 
+def test_decrement_stop_skips_the_confirming_step(small_graph, rng):
+    """From near the optimum LM needs a second step only to see that the first converged;
+    ``decrement_tolerance`` predicts that with the first step's factorisation instead."""
+    exact = solve_graph(small_graph, small_graph.poses, 50)
+    start = exact.poses + rng.normal(0.0, 1e-3, exact.poses.shape)
+    plain = solve_graph(small_graph, start, 50, relative_tolerance=1e-5)
+    early = solve_graph(small_graph, start, 50, relative_tolerance=1e-5, decrement_tolerance=1e-5)
+    assert early.converged and early.iterations < plain.iterations
+    assert early.F == pytest.approx(exact.F, rel=1e-5)
+
+
 def test_weights_and_mu_schedule():
     c = gnc.THRESHOLD
     squared = np.array([0.0, 0.5 * c, c, 2.0 * c, 100.0 * c])

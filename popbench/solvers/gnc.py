@@ -29,7 +29,9 @@ One round: weights from the current estimate and μ, then LM (:func:`~popbench.s
 solve_graph` with ``edge_weights``) on ``Σ w_e r_e²``, started from the last round's estimate
 (``warm_start=True``; GTSAM's ``GncOptimizer`` restarts every round from the inner start,
 ``warm_start=False``) and stopped, like GTSAM's inner LM, at a relative cost decrease of
-``1e-5`` (:data:`INNER_TOLERANCE`; also the non-robust solve). All solves share one sparse
+``1e-5`` (:data:`INNER_TOLERANCE`; also the non-robust solve), or when the next step's decrease
+predicted with the last factorisation is below that (``decrement_tolerance``: a warm-started
+round then usually costs one factorisation instead of two). All solves share one sparse
 pattern and fill-reducing order (:class:`~popbench.solvers.lm.NormalEquations`). After the last
 round, LM polishes the estimate at the final weights to its own tolerance (1e-10), so the
 reported poses and ``F`` are as converged as a plain LM solve's. Stopping (GTSAM's rules): the
@@ -188,7 +190,11 @@ def _solve_from(
     start = chordal_initialisation(graph) if inner_start == "chordal" else graph.poses
     known = np.isin(graph.kinds, np.array(ODOMETRY_KINDS, dtype=np.int8))
     weights = np.ones(graph.num_edges)
-    inner = {"structure": structure, "relative_tolerance": inner_tolerance}
+    inner = {
+        "structure": structure,
+        "relative_tolerance": inner_tolerance,
+        "decrement_tolerance": inner_tolerance,
+    }
     outcome = solve_graph(graph, start, inner_iterations, **inner)
     poses, lm_steps = outcome.poses, outcome.iterations
     history, mus = [outcome.F], []
@@ -201,9 +207,8 @@ def _solve_from(
         if budget.seconds is not None and time.perf_counter() - started > budget.seconds:
             break
         weights = np.where(known, 1.0, gnc_weights(surrogate, squared, mu, threshold))
-        outcome = solve_graph(
-            graph, poses if warm_start else start, inner_iterations, edge_weights=weights, **inner
-        )
+        origin = poses if warm_start else start
+        outcome = solve_graph(graph, origin, inner_iterations, edge_weights=weights, **inner)
         poses, lm_steps = outcome.poses, lm_steps + outcome.iterations
         squared = squared_residuals(graph, poses)
         history.append(outcome.F)

@@ -19,7 +19,11 @@ Headings are wrapped to ``[-π, π)`` after each step.
 One *iteration* is one LM step, accepted or rejected (each costs one factorisation).
 
 Stopping: an accepted step with ``F − F_new ≤ 1e-10 · F``, ``‖∇F‖_∞ ≤ 1e-9``, or a rejected
-step smaller than ``1e-14 · (1 + ‖x‖_∞)`` (no representable progress left).
+step smaller than ``1e-14 · (1 + ‖x‖_∞)`` (no representable progress left). Optionally
+(``decrement_tolerance``, off by default; GNC's warm-started rounds use it) also an accepted
+step after which the decrease predicted for the next step with the last factorisation,
+``gᵀ(H + λD)⁻¹g`` at the new ``g`` (one triangular solve), is ``≤ tol · F``: the step that would
+only confirm convergence is then not factorised.
 
 Sparse linear algebra: ``H``'s block pattern depends only on the edge list, so the CSC structure,
 the map from every per-edge 3×3 block entry to its CSC slot, and a fill-reducing order are built
@@ -223,6 +227,7 @@ def solve_graph(
     seconds: float | None = None,
     edge_weights: np.ndarray | None = None,
     structure: NormalEquations | None = None,
+    decrement_tolerance: float = 0.0,
 ) -> LMOutcome:
     """Minimise ``F`` (or ``F_chordal``) from ``poses0`` by sparse Levenberg–Marquardt, pose 0
     fixed; with ``edge_weights`` the weighted cost ``Σ_e w_e ‖e_e‖²`` instead.
@@ -242,6 +247,9 @@ def solve_graph(
             pose (connected through positive weights).
         structure: ``NormalEquations(graph)`` built by the caller, for repeated solves on one
             edge list (GNC's rounds); built here when None. Same numbers either way.
+        decrement_tolerance: when > 0, also stop after an accepted step whose predicted next
+            decrease with the last factorisation is at most this times the cost (module
+            docstring); 0 (default) keeps the plain LM above.
 
     Returns:
         :class:`LMOutcome` (its ``history`` is always ``F``, eq. 1, unweighted).
@@ -292,6 +300,11 @@ def solve_graph(
             history.append(value)
             history_s.append(time.perf_counter() - started)
             if decrease <= relative_tolerance * (cost + decrease):
+                converged = True
+                break
+            if decrement_tolerance > 0.0 and gradient @ lu.solve(gradient) <= (
+                decrement_tolerance * cost
+            ):  # the next step's predicted decrease, with the last factorisation
                 converged = True
                 break
         else:
