@@ -34,6 +34,17 @@ def test_edge_weights_scale_the_cost(small_graph):
         solve_graph(small_graph, small_graph.poses, 5, edge_weights=np.ones(3))
 
 
+def test_decrement_stop_skips_the_confirming_step(small_graph, rng):
+    """From near the optimum LM needs a second step only to see that the first converged;
+    ``decrement_tolerance`` predicts that with the first step's factorisation instead."""
+    exact = solve_graph(small_graph, small_graph.poses, 50)
+    start = exact.poses + rng.normal(0.0, 1e-3, exact.poses.shape)
+    plain = solve_graph(small_graph, start, 50, relative_tolerance=1e-5)
+    early = solve_graph(small_graph, start, 50, relative_tolerance=1e-5, decrement_tolerance=1e-5)
+    assert early.converged and early.iterations < plain.iterations
+    assert early.F == pytest.approx(exact.F, rel=1e-5)
+
+
 def test_weights_and_mu_schedule():
     c = gnc.THRESHOLD
     squared = np.array([0.0, 0.5 * c, c, 2.0 * c, 100.0 * c])
@@ -89,6 +100,54 @@ def test_gnc_flags_the_hand_made_outliers(surrogate, rng):
     np.testing.assert_allclose(result.poses, clean.poses, atol=1e-8 if surrogate == "tls" else 1e-2)
     lm = get_method("lm")(problem, Budget(iterations=100))
     assert result.F > lm.F  # GNC does not fit the outliers
+
+
+def _reference_gnc_tls(graph, known):
+    """Straightforward GNC-TLS: every round cold-started from ``graph.poses`` and solved by LM
+    to its default tolerance, the sparse structure rebuilt for every solve; returns the inlier
+    mask and the final poses."""
+    start = graph.poses
+    squared = gnc.squared_residuals(graph, solve_graph(graph, start).poses)
+    mu = gnc.initial_mu("tls", squared[~known].max())
+    previous = squared.sum()
+    for _ in range(100):
+        weights = np.where(known, 1.0, gnc.gnc_weights("tls", squared, mu))
+        poses = solve_graph(graph, start, edge_weights=weights).poses
+        squared = gnc.squared_residuals(graph, poses)
+        cost = np.sum(weights * squared)
+        binary = np.all((weights < 1e-4) | (weights > 1 - 1e-4))
+        if abs(cost - previous) / previous < gnc.COST_TOLERANCE or binary:
+            break
+        mu, previous = 1.4 * mu, cost
+    return (weights >= 0.5) | known, poses
+
+
+def test_fast_path_matches_a_straightforward_gnc(rng):
+    """The default path (warm starts, inner LM to 1e-5, one shared sparse structure, final
+    polish) flags the same edges and reaches the same F and poses as a plain cold-start GNC,
+    here with three gross outliers and two adjacent loop closures shifted by 6 and 1.5 σ, so
+    that several rounds see fractional weights and GNC must choose which of the two to reject
+    (it rejects one: the other absorbs the shift)."""
+    graph, outlier = _grid_with_outliers(rng)
+    loops = np.flatnonzero((graph.kinds == EdgeKind.LOOP) & ~outlier)
+    z = graph.measurements.copy()
+    z[loops[0], 0] += 0.06  # σ = 0.01 m
+    z[loops[1], 1] += 0.015
+    graph = graph.replace(measurements=z)
+    known = np.isin(graph.kinds, gnc.ODOMETRY_KINDS)
+    inlier, poses = _reference_gnc_tls(graph, known)
+    problem = DistributedProblem.from_graph(graph, 1)
+    result = gnc.solve(problem, inner_start="problem")
+    np.testing.assert_array_equal(result.inlier_mask, inlier)
+    assert not inlier[outlier].any() and inlier[loops[:2]].sum() == 1 and (~inlier).sum() == 4
+    np.testing.assert_allclose(result.poses, poses, atol=1e-7)
+    assert result.F == pytest.approx(objective.objective(graph, poses), rel=1e-9)
+    # the straightforward options of the same code (GTSAM's cold starts, tight inner LM)
+    plain = gnc.solve(problem, inner_start="problem", warm_start=False, inner_tolerance=1e-10)
+    np.testing.assert_array_equal(plain.inlier_mask, inlier)
+    assert plain.F == pytest.approx(result.F, rel=1e-9)
+    with pytest.raises(ValueRangeError):
+        gnc.solve(problem, inner_tolerance=0.0)
 
 
 def test_gnc_without_outliers_is_least_squares(small_graph):

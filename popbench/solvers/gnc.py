@@ -26,11 +26,17 @@ the start instead, over every factor). If ``2 r²_max ≤ c̄²`` (TLS) nothing 
 and that solution is returned.
 
 One round: weights from the current estimate and μ, then LM (:func:`~popbench.solvers.lm.
-solve_graph` with ``edge_weights``) on ``Σ w_e r_e²``. Like GTSAM's ``GncOptimizer`` every inner
-solve starts from the inner start (``warm_start=False``), not from the last round's estimate.
-Stopping (GTSAM's rules): the relative change of the weighted cost between rounds is below
-``1e-5``; TLS: every weight is within ``1e-4`` of 0 or 1; GM: the round ran at μ = 1; or the
-budget's rounds are spent.
+solve_graph` with ``edge_weights``) on ``Σ w_e r_e²``, started from the last round's estimate
+(``warm_start=True``; GTSAM's ``GncOptimizer`` restarts every round from the inner start,
+``warm_start=False``) and stopped, like GTSAM's inner LM, at a relative cost decrease of
+``1e-5`` (:data:`INNER_TOLERANCE`; also the non-robust solve), or when the next step's decrease
+predicted with the last factorisation is below that (``decrement_tolerance``: a warm-started
+round then usually costs one factorisation instead of two). All solves share one sparse
+pattern and fill-reducing order (:class:`~popbench.solvers.lm.NormalEquations`). After the last
+round, LM polishes the estimate at the final weights to its own tolerance (1e-10), so the
+reported poses and ``F`` are as converged as a plain LM solve's. Stopping (GTSAM's rules): the
+relative change of the weighted cost between rounds is below ``1e-5``; TLS: every weight is
+within ``1e-4`` of 0 or 1; GM: the round ran at μ = 1; or the budget's rounds are spent.
 
 Known inliers (weight 1 throughout): the odometry edges, kinds ODOMETRY and INTER_RELATIVE
 (the outlier model of :mod:`popbench.outliers` never corrupts them by default); they also keep
@@ -60,7 +66,7 @@ from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
 from popbench.methods import Budget, Result
 from popbench.solvers.chordal import chordal_initialisation
-from popbench.solvers.lm import solve_graph
+from popbench.solvers.lm import NormalEquations, solve_graph
 
 SURROGATES = ("tls", "gm")
 INNER_STARTS = ("best", "problem", "chordal")
@@ -68,6 +74,8 @@ INNER_STARTS = ("best", "problem", "chordal")
 THRESHOLD = 11.344866730144373
 MU_STEP = 1.4
 COST_TOLERANCE = 1e-5
+# Relative cost decrease that ends an inner LM solve (GTSAM's LevenbergMarquardtParams default).
+INNER_TOLERANCE = 1e-5
 WEIGHT_TOLERANCE = 1e-4
 ODOMETRY_KINDS = (EdgeKind.ODOMETRY, EdgeKind.INTER_RELATIVE)
 
@@ -110,9 +118,10 @@ def solve(
     surrogate: str = "tls",
     threshold: float = THRESHOLD,
     inner_start: str = "best",
-    warm_start: bool = False,
+    warm_start: bool = True,
     inner_iterations: int = 100,
     mu_step: float = MU_STEP,
+    inner_tolerance: float = INNER_TOLERANCE,
     **_: object,
 ) -> Result:
     """Method ``"gnc"``: centralised GNC (module docstring), robots ignored.
@@ -126,15 +135,18 @@ def solve(
         surrogate: ``"tls"`` (truncated least squares) or ``"gm"`` (Geman–McClure).
         threshold: ``c̄²``, in units of ``‖e‖²`` (default χ²₃(0.99) = 11.345).
         inner_start: ``"best"``, ``"problem"`` or ``"chordal"`` (module docstring).
-        warm_start: start each inner solve from the last round's estimate instead of the inner
-            start.
+        warm_start: start each round's LM from the last round's estimate (default) instead of
+            the inner start (GTSAM's choice).
         inner_iterations: LM steps per inner solve at most.
         mu_step: the factor μ moves by per round (> 1).
+        inner_tolerance: relative cost decrease that ends an inner solve (the non-robust one and
+            each round's; the final polish uses LM's default, 1e-10).
         _: options of other methods (``seed``, ...), ignored: GNC is deterministic.
 
     Returns:
         :class:`~popbench.methods.Result`: ``inlier_mask`` from the final weights,
-        ``history`` = ``F`` (eq. 1, over every edge) after the non-robust solve and each round,
+        ``history`` = ``F`` (eq. 1, over every edge) after the non-robust solve and each round
+        (the last entry after the final polish),
         ``extras``: ``weights`` (``(M,)``), ``mu`` per round, ``rounds``, ``lm_steps``,
         ``converged``, ``surrogate``, ``threshold``, ``inner_start`` (the start kept),
         ``robust_cost``; ``wall_s`` covers both runs for ``"best"``.
@@ -143,13 +155,18 @@ def solve(
         raise ValueRangeError("gnc surrogate", surrogate, " | ".join(SURROGATES))
     if inner_start not in INNER_STARTS:
         raise ValueRangeError("gnc inner start", inner_start, " | ".join(INNER_STARTS))
-    if not threshold > 0.0 or not mu_step > 1.0:
-        raise ValueRangeError("gnc threshold / mu_step", (threshold, mu_step), "> 0 / > 1")
+    if not threshold > 0.0 or not mu_step > 1.0 or not inner_tolerance > 0.0:
+        raise ValueRangeError(
+            "gnc threshold / mu_step / inner_tolerance",
+            (threshold, mu_step, inner_tolerance),
+            "> 0 / > 1 / > 0",
+        )
     budget = Budget() if budget is None else budget
     started = time.perf_counter()
     starts = ("problem", "chordal") if inner_start == "best" else (inner_start,)
-    options = (surrogate, threshold, warm_start, inner_iterations, mu_step)
-    results = [_solve_from(problem, budget, start, *options) for start in starts]
+    structure = NormalEquations(problem.graph)  # one sparse pattern and order for every solve
+    options = (surrogate, threshold, warm_start, inner_iterations, mu_step, inner_tolerance)
+    results = [_solve_from(problem, budget, start, structure, *options) for start in starts]
     result = min(results, key=lambda r: r.extras["robust_cost"])
     result.wall_s = result.parallel_s = time.perf_counter() - started
     return result
@@ -159,11 +176,13 @@ def _solve_from(
     problem: DistributedProblem,
     budget: Budget,
     inner_start: str,
+    structure: NormalEquations,
     surrogate: str,
     threshold: float,
     warm_start: bool,
     inner_iterations: int,
     mu_step: float,
+    inner_tolerance: float,
 ) -> Result:
     """GNC from one inner start (``"problem"`` or ``"chordal"``); see :func:`solve`."""
     graph = problem.graph
@@ -171,7 +190,12 @@ def _solve_from(
     start = chordal_initialisation(graph) if inner_start == "chordal" else graph.poses
     known = np.isin(graph.kinds, np.array(ODOMETRY_KINDS, dtype=np.int8))
     weights = np.ones(graph.num_edges)
-    outcome = solve_graph(graph, start, inner_iterations)
+    inner = {
+        "structure": structure,
+        "relative_tolerance": inner_tolerance,
+        "decrement_tolerance": inner_tolerance,
+    }
+    outcome = solve_graph(graph, start, inner_iterations, **inner)
     poses, lm_steps = outcome.poses, outcome.iterations
     history, mus = [outcome.F], []
     squared = squared_residuals(graph, poses)
@@ -183,9 +207,8 @@ def _solve_from(
         if budget.seconds is not None and time.perf_counter() - started > budget.seconds:
             break
         weights = np.where(known, 1.0, gnc_weights(surrogate, squared, mu, threshold))
-        outcome = solve_graph(
-            graph, poses if warm_start else start, inner_iterations, edge_weights=weights
-        )
+        origin = poses if warm_start else start
+        outcome = solve_graph(graph, origin, inner_iterations, edge_weights=weights, **inner)
         poses, lm_steps = outcome.poses, lm_steps + outcome.iterations
         squared = squared_residuals(graph, poses)
         history.append(outcome.F)
@@ -196,6 +219,11 @@ def _solve_from(
             converged = True
             break
         mu, previous_cost = next_mu(surrogate, mu, mu_step), cost
+    # polish: the last estimate to LM's own tolerance at the final weights
+    outcome = solve_graph(graph, poses, inner_iterations, edge_weights=weights, structure=structure)
+    poses, lm_steps = outcome.poses, lm_steps + outcome.iterations
+    squared = squared_residuals(graph, poses)
+    history[-1] = outcome.F
     if surrogate == "tls":
         inlier = weights >= 0.5
     else:

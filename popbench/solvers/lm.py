@@ -19,7 +19,11 @@ Headings are wrapped to ``[-π, π)`` after each step.
 One *iteration* is one LM step, accepted or rejected (each costs one factorisation).
 
 Stopping: an accepted step with ``F − F_new ≤ 1e-10 · F``, ``‖∇F‖_∞ ≤ 1e-9``, or a rejected
-step smaller than ``1e-14 · (1 + ‖x‖_∞)`` (no representable progress left).
+step smaller than ``1e-14 · (1 + ‖x‖_∞)`` (no representable progress left). Optionally
+(``decrement_tolerance``, off by default; GNC's warm-started rounds use it) also an accepted
+step after which the decrease predicted for the next step with the last factorisation,
+``gᵀ(H + λD)⁻¹g`` at the new ``g`` (one triangular solve), is ``≤ tol · F``: the step that would
+only confirm convergence is then not factorised.
 
 Sparse linear algebra: ``H``'s block pattern depends only on the edge list, so the CSC structure,
 the map from every per-edge 3×3 block entry to its CSC slot, and a fill-reducing order are built
@@ -89,7 +93,7 @@ class LMOutcome(NamedTuple):
         return float(self.history[-1])
 
 
-class _NormalEquations:
+class NormalEquations:
     """Sparse structure of the gauge-fixed ``H = JᵀJ`` (``3(N−1)`` square), built once per graph.
 
     Free pose ``i`` owns the renumbered coordinates ``3·position[i] + (0, 1, 2)``, ``position``
@@ -129,8 +133,9 @@ class _NormalEquations:
     def hessian_values(self, lin: objective.Linearisation) -> np.ndarray:
         """CSC values of ``H = JᵀJ`` over the free poses (renumbered), ``(nnz,)``."""
         jacobians = np.stack([lin.jac_tail, lin.jac_head], 1)  # (M, 2, 3, 3): tail, head
-        # (M, 2, 2, 3, 3) blocks J_aᵀ J_b in the slot order (p,p), (p,q), (q,p), (q,q)
-        blocks = np.swapaxes(jacobians, 2, 3)[:, :, None] @ jacobians[:, None, :]
+        # (M, 2, 2, 3, 3) blocks J_aᵀ J_b in the slot order (p,p), (p,q), (q,p), (q,q); einsum's
+        # optimised path: the products and sums of a batched matmul, ≈ 5× faster (measured)
+        blocks = np.einsum("maki,mbkj->mabij", jacobians, jacobians, optimize=True)
         return np.bincount(self.slots, blocks.ravel(), self.nnz + 1)[: self.nnz]
 
     def gradient(self, lin: objective.Linearisation) -> np.ndarray:
@@ -221,6 +226,8 @@ def solve_graph(
     gradient_tolerance: float = 1e-9,
     seconds: float | None = None,
     edge_weights: np.ndarray | None = None,
+    structure: NormalEquations | None = None,
+    decrement_tolerance: float = 0.0,
 ) -> LMOutcome:
     """Minimise ``F`` (or ``F_chordal``) from ``poses0`` by sparse Levenberg–Marquardt, pose 0
     fixed; with ``edge_weights`` the weighted cost ``Σ_e w_e ‖e_e‖²`` instead.
@@ -238,6 +245,11 @@ def solve_graph(
             minimised cost, e.g. robust IRLS / GNC weights; the stopping tests apply to the
             weighted cost. Edges of weight 0 drop out: the weighted graph must still pin every
             pose (connected through positive weights).
+        structure: ``NormalEquations(graph)`` built by the caller, for repeated solves on one
+            edge list (GNC's rounds); built here when None. Same numbers either way.
+        decrement_tolerance: when > 0, also stop after an accepted step whose predicted next
+            decrease with the last factorisation is at most this times the cost (module
+            docstring); 0 (default) keeps the plain LM above.
 
     Returns:
         :class:`LMOutcome` (its ``history`` is always ``F``, eq. 1, unweighted).
@@ -259,7 +271,7 @@ def solve_graph(
     history, history_s = [value], [time.perf_counter() - started]
     if graph.num_poses < 2:
         return LMOutcome(poses, np.array(history), 0, True, 0, 0.0, np.array(history_s))
-    normal = _NormalEquations(graph)
+    normal = NormalEquations(graph) if structure is None else structure
     cost = float(np.sum(lin.errors**2))
     hessian, gradient = normal.hessian_values(lin), normal.gradient(lin)
     damping, growth = _INITIAL_DAMPING, 2.0
@@ -288,6 +300,11 @@ def solve_graph(
             history.append(value)
             history_s.append(time.perf_counter() - started)
             if decrease <= relative_tolerance * (cost + decrease):
+                converged = True
+                break
+            if decrement_tolerance > 0.0 and gradient @ lu.solve(gradient) <= (
+                decrement_tolerance * cost
+            ):  # the next step's predicted decrease, with the last factorisation
                 converged = True
                 break
         else:
