@@ -74,7 +74,9 @@ def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
     algorithm = session.config.algorithm
     actor_learns = session.actor_learns or session.updates >= algorithm.critic_warmup_updates
     session.actor_learns = actor_learns
-    decay = max(0.0, 1.0 - session.actor_updates / max(algorithm.anchor_updates, 1))
+    decay = 1.0  # anchor_updates 0: the anchor's weight is held
+    if algorithm.anchor_updates > 0:
+        decay = max(0.0, 1.0 - session.actor_updates / algorithm.anchor_updates)
     session.loss.anchor_scale.fill_(decay)
     out = session.loss(batch)
     total = sum(
