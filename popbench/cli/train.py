@@ -101,8 +101,10 @@ def train_command(
         str,
         typer.Option(
             help="Model/algorithm sizes: paper (5×128 GNN, §IV-A), cpu-small, cpu-imitation "
-            "(imitation of the expert first, then GA-SAC) or cpu-imitation-robust (the same "
-            "on problems with injected outliers, with a supervised gate loss)."
+            "(imitation of the expert first, then GA-SAC), cpu-imitation-robust (the same "
+            "on problems with injected outliers, with a supervised gate loss) or cpu-residual "
+            "(issue 26: a correction head that reads the base step, GA-SAC on the local F with "
+            "a KL anchor to the imitation policy)."
         ),
     ] = "paper",
     threads: CommandThreads = 1,
