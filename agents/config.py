@@ -174,6 +174,12 @@ class ExperimentConfig:
             loop-closure candidates) at a rate drawn per problem from U(0, outlier_rate_max);
             0 = clean problems (envs.make_problem_source). The held-out evaluation during
             training stays clean.
+        start_noise: > 0: the synthetic problems start off their odometry, each measurement of
+            the composition perturbed by that many standard deviations (envs.make_problem_source;
+            the sanity task of tests/test_learning_checks.py); 0: the odometry start.
+        init_actor: an actor checkpoint (.pt, e.g. a committed imitation actor) that GA-SAC
+            starts from instead of the imitation phase; its model and task must be the run's.
+            None: the imitation phase (when the preset has one) or a fresh actor.
     """
 
     noise: str = "V2"
@@ -190,6 +196,8 @@ class ExperimentConfig:
     out_dir: str = "runs/ga-sac"
     progress: bool = True
     outlier_rate_max: float = 0.0
+    start_noise: float = 0.0
+    init_actor: str | None = None
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,8 @@
 :func:`correction_probe` runs the deterministic actor for one episode on held-out synthetic
 problems (the experiment's kind, a seed stream disjoint from training) and, on every step where
 an agent corrects a spanning-tree edge, records the expert's Δ on the chosen edge, the base step
-Δ_GN and the executed correction clip(δ + Δ_GN). It reports
+Δ_GN and the executed correction clip(δ + Δ_GN) (clip(δ) in an environment without the base
+step). It reports
 
 * ``corr_executed``: correlation of the executed correction with the expert's Δ (over states
   and the three components, whitened units);
@@ -52,12 +53,13 @@ def _episode(actor: HybridActor, core, expert, zero: bool) -> dict:  # noqa: ANN
         out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
         edge = out.edge.view(b, n)
         base = core.base_step(edge).reshape(g, 3).to(torch.float32)
+        added = base if core.base == "gauss-newton" else torch.zeros_like(base)
         delta = torch.zeros_like(out.delta) if zero else out.delta
         on_tree = torch.gather(core.tensors["tree_edge"].view(g, -1), 1, out.edge[:, None])[:, 0]
         keep = on_tree & (out.edge < e)
         rows["expert"].append(expert.delta(edge).reshape(g, 3)[keep].to(torch.float32))
         rows["base"].append(base[keep])
-        rows["executed"].append(torch.clamp(delta + base, -bound, bound)[keep])
+        rows["executed"].append(torch.clamp(delta + added, -bound, bound)[keep])
         rows["delta"].append(out.delta[keep])
         core.step(edge, delta.view(b, n, 3))
         memory, prev_edge, prev_delta = out.memory, out.edge_weights, delta

@@ -111,6 +111,7 @@ def fit_outlier_gate(
         experiment.robots,
         experiment.noise,
         poses_per_robot=experiment.poses_per_robot,
+        start_noise=experiment.start_noise,
         outlier_rate_max=config.outlier_rate_max,
     )[0]
     consensus = config.consensus or DEFAULT_CONSENSUS

@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 
 from agents.actor import HybridActor
-from agents.config import ExperimentConfig, ImitationConfig, TaskConfig
+from agents.config import ExperimentConfig, ImitationConfig, TaskConfig, TrainConfig
 from agents.encoder import GraphBatch
 from agents.loss_terms import gate_supervision_loss, imitation_losses
 
@@ -73,6 +73,7 @@ def make_core(task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: 
         experiment.robots,
         experiment.noise,
         poses_per_robot=experiment.poses_per_robot,
+        start_noise=experiment.start_noise,
         outlier_rate_max=experiment.outlier_rate_max,
     )
     core = PGOCore(experiment.robots, dims, batch, reward="F", **task.core_options())
@@ -255,4 +256,31 @@ def run_phase(session, out_dir: Path) -> None:  # noqa: ANN001 - agents.session.
     )
     save(config.imitation.episodes, True)
     keep = {"config": config.to_dict(), "dims": session.dims, "frames": 0, "updates": 0}
+    save_checkpoint(out_dir / IMITATION_ACTOR, {**keep, "actor": session.actor.state_dict()})
+
+
+def start_from_actor(session, path: Path, out_dir: Path) -> None:  # noqa: ANN001 - Session
+    """Load a trained actor (e.g. a committed imitation actor) into `session.actor` in place of
+    the imitation phase, and write it as the run's ``imitation-actor.pt`` (the held-out
+    "imitation" row's actor). The checkpoint's model (but its action bound, which the
+    environment sets) and task must be the run's: a one-line `CheckpointError` otherwise."""
+    from agents.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
+
+    state = read_checkpoint(path, session.config.experiment.device)
+    stored = TrainConfig.from_dict(state["config"])
+    model = dataclasses.replace(stored.model, delta_max=session.config.model.delta_max)
+    differing = [
+        f"{part}.{field.name}"
+        for part, ours, theirs in (
+            ("model", session.config.model, model),
+            ("task", session.config.task, stored.task),
+        )
+        for field in dataclasses.fields(ours)
+        if getattr(ours, field.name) != getattr(theirs, field.name)
+    ]
+    if differing or state["dims"] != session.dims:
+        what = ", ".join(differing) or "the environment's dimensions"
+        raise CheckpointError(f"{path}: the actor was trained with another {what} than this run")
+    session.actor.load_state_dict(state["actor"])
+    keep = {"config": session.config.to_dict(), "dims": session.dims, "frames": 0, "updates": 0}
     save_checkpoint(out_dir / IMITATION_ACTOR, {**keep, "actor": session.actor.state_dict()})

@@ -52,6 +52,7 @@ def make_env(config: TrainConfig, batch_size: int, seed: int, **options: Any):
         seed=seed,
         device=experiment.device,
         poses_per_robot=experiment.poses_per_robot,
+        start_noise=experiment.start_noise,
         **config.task.core_options(),
         **options,
     )

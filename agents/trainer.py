@@ -10,7 +10,9 @@
                     wall_s (seconds of training, summed over resumed calls)
     learning_curve.png, .pdf  episode return and held-out F reduction against frames
     imitation.pt, imitation.csv, imitation-actor.pt  the imitation phase (agents.imitation),
-                    which runs first when `config.imitation.episodes` > 0
+                    which runs first when `config.imitation.episodes` > 0 (with
+                    `experiment.init_actor` set, that actor is the start instead, copied to
+                    imitation-actor.pt)
 and returns a `TrainResult` (frames trained by this call, total frames, updates).
 
 Resuming: the checkpoint's config must match the requested one except for the experiment's
@@ -55,6 +57,7 @@ from agents.checkpoint import read_checkpoint, save_checkpoint
 from agents.config import TrainConfig
 from agents.diagnostics import critic_probe
 from agents.imitation import run_phase as run_imitation_phase
+from agents.imitation import start_from_actor
 from agents.metrics import METRIC_FIELDS, EpisodeTracker, plot_learning_curve, truncate_metrics
 from agents.resume import check_resume_config
 from agents.session import Session, build_session, make_env, restore, session_state
@@ -216,9 +219,11 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
         wall_offset = truncate_metrics(metrics_path, session.frames)
     elif metrics_path.exists():
         metrics_path.unlink()
-    if config.imitation.episodes > 0 and session.frames == 0:  # before any GA-SAC frame
-        run_imitation_phase(session, out_dir)
-    if session.frames == 0:  # the fine-tuning's start policy is the anchor's π₀
+    if session.frames == 0:  # before any GA-SAC frame: the start policy, the anchor's π₀
+        if experiment.init_actor is not None:
+            start_from_actor(session, Path(experiment.init_actor), out_dir)
+        elif config.imitation.episodes > 0:
+            run_imitation_phase(session, out_dir)
         session.loss.set_anchor(session.actor)
     resumed_from = session.frames
     remaining = experiment.frames - session.frames

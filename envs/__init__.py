@@ -56,6 +56,7 @@ def make_problem_source(
     max_edges: int | None = None,
     max_degree: int | None = None,
     outlier_rate_max: float = 0.0,
+    start_noise: float = 0.0,
 ) -> tuple[Any, Dimensions, bool]:
     """``(source, dims, has_ground_truth)``: a ``seed -> DistributedProblem`` callable and the
     padding maxima (see the module docstring).
@@ -70,17 +71,24 @@ def make_problem_source(
             (``"odometry"``, the composition, default; ``"chordal"``; ``"given"``, the file's).
         max_vertices, max_edges, max_degree: padding maxima overriding the defaults.
         outlier_rate_max: the largest training outlier rate (module docstring; synthetic only).
+        start_noise: > 0: synthetic problems start off their odometry, every measurement of the
+            composition perturbed by that many standard deviations
+            (:func:`popbench.synthetic.perturbed_start`; the sanity task).
     """
     if dataset is None:
-        source = _Synthetic(robots, noise, poses_per_robot, loop_ratio, outlier_rate_max)
+        source = _Synthetic(
+            robots, noise, poses_per_robot, loop_ratio, outlier_rate_max, start_noise
+        )
         probes = [source(PROBE_SEED + k) for k in range(PROBE_PROBLEMS)]
         dims = Dimensions.of(probes, PADDING_MARGIN, multiple=8)
         has_truth = True
     else:
-        if outlier_rate_max > 0:
-            from popbench.errors import ValueRangeError
+        from popbench.errors import ValueRangeError
 
+        if outlier_rate_max > 0:
             raise ValueRangeError("outlier_rate_max", outlier_rate_max, "0 for a dataset")
+        if start_noise > 0:
+            raise ValueRangeError("start_noise", start_noise, "0 for a dataset")
         problem = dataset_problem(dataset, robots, partition, start)
         source = _Constant(problem)
         dims = Dimensions.of([problem])
@@ -106,22 +114,27 @@ def dataset_problem(
 
 @dataclasses.dataclass(frozen=True)
 class _Synthetic:
-    """A problem source drawing :func:`popbench.synthetic.make_problem` problems by seed, with
-    outliers at a rate ``U(0, outlier_rate_max)`` per problem when ``outlier_rate_max`` > 0
-    (the rate and the corruption seeded by the problem's seed)."""
+    """A problem source drawing :func:`popbench.synthetic.make_problem` problems by seed, started
+    off their odometry when ``start_noise`` > 0, with outliers at a rate ``U(0,
+    outlier_rate_max)`` per problem when ``outlier_rate_max`` > 0 (the start, the rate and the
+    corruption seeded by the problem's seed)."""
 
     robots: int
     noise: str
     poses_per_robot: int
     loop_ratio: float
     outlier_rate_max: float = 0.0
+    start_noise: float = 0.0
 
     def __call__(self, seed: int) -> DistributedProblem:
-        from popbench.synthetic import make_problem
+        from popbench.synthetic import make_problem, perturbed_start
 
         problem = make_problem(
             self.robots, self.noise, self.poses_per_robot, self.loop_ratio, seed=seed
         )
+        if self.start_noise > 0:
+            start_seed = int(np.random.SeedSequence([seed, 2]).generate_state(1)[0])
+            problem = perturbed_start(problem, self.start_noise, start_seed)
         if self.outlier_rate_max <= 0:
             return problem
         from popbench.outliers import with_outliers
@@ -153,6 +166,7 @@ def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, A
         "max_edges",
         "max_degree",
         "outlier_rate_max",
+        "start_noise",
     }
     source = {key: value for key, value in options.items() if key in source_keys}
     env = {key: value for key, value in options.items() if key not in source_keys}

@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 from popbench import se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.graph import make_graph, robot_kinds
+from popbench.graph import make_graph, odometry_composition, robot_kinds
 from popbench.initial import with_start
 
 # σ (odometry, intra-robot loop, inter-robot relative and loop), same units on x, y [m], θ [rad].
@@ -170,3 +170,21 @@ def make_problem(
         name=f"synthetic-{noise}-R{robots}x{poses_per_robot}-seed{seed}",
     )
     return with_start(DistributedProblem(graph), "odometry")
+
+
+def perturbed_start(problem: DistributedProblem, scale: float, seed: int) -> DistributedProblem:
+    """``problem`` started off its odometry: the composition of the measurements, each
+    perturbed by a twist ``N(0, (scale · σ)²)`` per component (σ the edge's own standard
+    deviation; only the odometry chain's enter the composition). The best correction of each
+    odometry step is then to undo its perturbation, which the step's residual shows: the
+    sanity task of the agents' tests (a learner must map the residual to the correction).
+    The start is recorded as ``"given"``.
+    """
+    if not scale >= 0.0:
+        raise ValueRangeError("start noise", scale, "≥ 0 (standard deviations)")
+    graph = problem.graph
+    sigma = 1.0 / np.sqrt(np.diagonal(graph.information, axis1=1, axis2=2))
+    twists = np.random.default_rng(seed).normal(size=sigma.shape) * scale * sigma
+    steps = se2.compose(graph.measurements, se2.exp(twists))
+    poses = odometry_composition(graph.num_poses, graph.tails, graph.heads, steps)
+    return DistributedProblem(graph.replace(poses=poses), "given", problem.outlier_mask)

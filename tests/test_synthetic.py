@@ -97,3 +97,18 @@ def test_invalid_arguments(kwargs):
     with pytest.raises(ValueRangeError) as error:
         make_problem(**kwargs)
     assert "\n" not in str(error.value)
+
+
+def test_perturbed_start_moves_each_odometry_step_by_its_scale_in_sigmas() -> None:
+    from popbench.synthetic import perturbed_start
+
+    problem = make_problem(1, "V2", 400, loop_ratio=0.0, seed=3)
+    assert np.allclose(perturbed_start(problem, 0.0, 1).graph.poses, problem.graph.poses)
+    moved = perturbed_start(problem, 2.0, seed=1).graph
+    steps = se2.between(moved.poses[moved.tails], moved.poses[moved.heads])
+    whitened = se2.log(se2.between(moved.measurements, steps)) / np.sqrt(
+        1.0 / np.diagonal(moved.information, axis1=1, axis2=2)
+    )
+    assert np.std(whitened, axis=0) == pytest.approx([2.0, 2.0, 2.0], rel=0.1)
+    with pytest.raises(ValueRangeError, match="start noise"):
+        perturbed_start(problem, -1.0, 0)

@@ -199,3 +199,35 @@ def test_keyboard_interrupt_inside_the_loss_stays_a_keyboard_interrupt(
     result = train(tiny(tmp_path, 128), resume=True)
     assert (result.resumed_from, result.frames) == (96, 128)
     assert metric_frames(tmp_path) == [32, 64, 96, 128]
+
+
+def test_init_actor_starts_from_that_actor_and_refuses_another_model(tmp_path) -> None:
+    """`init_actor` replaces the imitation phase: the run's imitation-actor.pt and the anchor's
+    start are the given actor's weights; an actor of another model is refused in one line."""
+    import torch
+
+    from agents.checkpoint import CheckpointError, save_checkpoint
+    from agents.trainer import train
+
+    first = tmp_path / "first"
+    train(tiny(first, 32), resume=False)
+    start = read_checkpoint(first / "checkpoint.pt")
+    with torch.no_grad():  # an actor that a fresh one (same seed) cannot equal
+        start["actor"] = {key: value + 0.01 for key, value in start["actor"].items()}
+    given = save_checkpoint(tmp_path / "given.pt", start)
+    second = tmp_path / "second"
+    train(tiny(second, 32, init_actor=str(given)), resume=False)
+    copied = read_checkpoint(second / "imitation-actor.pt")["actor"]
+    assert all(torch.equal(copied[key], start["actor"][key]) for key in start["actor"])
+
+    other = dataclasses.replace(tiny(second, 32), model=dataclasses.replace(TINY, hidden=12))
+    with pytest.raises(CheckpointError, match="model.hidden"):
+        train(
+            dataclasses.replace(
+                other,
+                experiment=dataclasses.replace(
+                    other.experiment, out_dir=str(tmp_path / "third"), init_actor=str(given)
+                ),
+            ),
+            resume=False,
+        )

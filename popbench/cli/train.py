@@ -37,6 +37,7 @@ def train_config(
     out: str | None,
     preset: str,
     progress: bool = True,
+    init_actor: Path | None = None,
 ):
     """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied."""
     import dataclasses
@@ -55,6 +56,8 @@ def train_config(
         raise ValueRangeError("--device", device, " or ".join(TRAIN_DEVICES))
     if preset not in presets:
         raise ValueRangeError("--preset", preset, " or ".join(presets))
+    if init_actor is not None and not init_actor.is_file():
+        raise ValueRangeError("--init-actor", str(init_actor), "an existing actor checkpoint")
     if device == "cuda":
         import torch
 
@@ -70,6 +73,7 @@ def train_config(
         frames=config.experiment.frames if frames is None else frames,
         out_dir=out or f"runs/ga-sac-{env}-n{robots}-s{seed}",
         progress=progress,
+        init_actor=None if init_actor is None else str(init_actor),
     )
     return dataclasses.replace(config, experiment=experiment)
 
@@ -78,6 +82,8 @@ EPILOG = (
     "Examples:\n\n"
     "  popbench train --env V2 --robots 7 --seed 0\n\n"
     "  popbench train --env V2 --robots 3 --preset cpu-small --frames 20000 --out runs/n3\n\n"
+    "  popbench train --preset cpu-residual --init-actor "
+    "agents/checkpoints/imitation-V2-n7-residual.pt --out runs/ft\n\n"
     "Writes checkpoint.pt, metrics.csv and learning_curve.png into --out; a rerun with the "
     "same --out resumes from checkpoint.pt unless --no-resume."
 )
@@ -107,6 +113,13 @@ def train_command(
             "a KL anchor to the imitation policy)."
         ),
     ] = "paper",
+    init_actor: Annotated[
+        Path | None,
+        typer.Option(
+            help="Start GA-SAC from this actor checkpoint (e.g. a committed imitation actor) "
+            "instead of the preset's imitation phase; its model and task must be the preset's."
+        ),
+    ] = None,
     threads: CommandThreads = 1,
 ) -> None:
     """Train GA-SAC actors (TorchRL collector + replay) with checkpoints and learning curves."""
@@ -114,7 +127,7 @@ def train_command(
     from popbench.threads import limited_threads
 
     run_training = load_object(TRAINING["train"])  # agents.trainer.train
-    config = train_config(env, robots, seed, frames, device, out, preset)
+    config = train_config(env, robots, seed, frames, device, out, preset, init_actor=init_actor)
     with limited_threads(threads):
         summary = run_training(config, resume=resume).summary()
     typer.echo(summary)
