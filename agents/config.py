@@ -319,6 +319,53 @@ class TrainConfig:
         )
 
 
+def with_overrides(config: TrainConfig, settings: list[str]) -> TrainConfig:
+    """``config`` with ``PART.FIELD=VALUE`` settings applied (``popbench train --set``), e.g.
+    ``algorithm.anchor_weight=0.1``, ``model.correction_hidden=64,64``,
+    ``experiment.init_actor=none``. The value is read as the field's default's type (bool:
+    true/false; a tuple: comma-separated; none: None where the field allows it); a one-line
+    `ValueRangeError` names a setting that does not fit."""
+    from popbench.errors import ValueRangeError
+
+    parts = {f.name: f.name for f in fields(TrainConfig)}
+    for setting in settings:
+        key, equals, text = setting.partition("=")
+        part, dot, name = key.strip().partition(".")
+        section = getattr(config, part, None) if part in parts else None
+        known = {f.name: f for f in fields(section)} if section is not None else {}
+        if not (equals and dot and name in known):
+            allowed = "PART.FIELD=VALUE with PART one of " + ", ".join(parts)
+            if section is not None:
+                allowed = f"{part}.FIELD=VALUE with FIELD one of " + ", ".join(known)
+            raise ValueRangeError("--set", setting, allowed)
+        current = getattr(section, name)
+        try:
+            value = _parse_setting(text.strip(), current, str(known[name].type))
+        except ValueError:
+            kind = type(current).__name__ if current is not None else str(known[name].type)
+            raise ValueRangeError("--set", setting, f"a value of type {kind}") from None
+        section = dataclasses.replace(section, **{name: value})
+        config = dataclasses.replace(config, **{part: section})
+    return config
+
+
+def _parse_setting(text: str, current: Any, annotation: str) -> Any:
+    if text.lower() == "none" and (current is None or "None" in annotation):
+        return None
+    if isinstance(current, bool):
+        if text.lower() not in ("true", "false"):
+            raise ValueError(text)
+        return text.lower() == "true"
+    if isinstance(current, tuple):
+        kind = type(current[0]) if current else float
+        return tuple(kind(item) for item in text.split(","))
+    if isinstance(current, int):
+        return int(text)
+    if isinstance(current, float) or "float" in annotation:
+        return float(text)
+    return text
+
+
 def _build(kind: type, values: dict[str, Any]) -> Any:
     tuple_fields = {f.name for f in fields(kind) if str(f.type).startswith("tuple")}
     return kind(**{k: tuple(v) if k in tuple_fields else v for k, v in values.items()})

@@ -268,6 +268,9 @@ def test_cli_solve_prop_v1_json(problem, tiny_checkpoint: Path, tmp_path: Path, 
         (["--frames", "-5"], "--frames"),
         (["--device", "tpu"], "--device"),
         (["--preset", "huge"], "--preset"),
+        (["--set", "algorithm.anchor=1"], "anchor_weight"),
+        (["--set", "algorithm.anchor_weight=strong"], "float"),
+        (["--init-actor", "no/such/actor.pt"], "--init-actor"),
     ],
 )
 def test_cli_train_bad_values_are_one_line(args, phrase, capsys) -> None:
@@ -282,3 +285,14 @@ def test_train_config_applies_command_values() -> None:
     assert config.experiment.seed == 11 and config.experiment.frames == 500
     assert config.experiment.out_dir == "runs/x"
     assert config.model.hidden == 32  # the cpu-small preset, not the paper's 128
+
+
+def test_train_config_set_changes_one_setting_of_the_preset() -> None:
+    settings = ["algorithm.anchor_weight=0.1", "model.correction_hidden=64,64", "task.base=none"]
+    config = train_config("V2", 7, 0, None, "cpu", None, "cpu-residual", settings=settings)
+    assert config.algorithm.anchor_weight == 0.1 and config.model.correction_hidden == (64, 64)
+    assert config.task.base == "none"
+    assert config.algorithm.reward == "F"  # the rest is the preset's
+    with pytest.raises(ValueRangeError, match="PART one of model"):
+        train_config("V2", 7, 0, None, "cpu", None, "cpu-residual", settings=["a.b=1"])
+

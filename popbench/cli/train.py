@@ -19,6 +19,7 @@ from popbench.errors import ValueRangeError
 TRAINING = {
     "presets": "agents.config:PRESETS",  # dict[str, agents.config.TrainConfig]
     "train": "agents.trainer:train",  # (TrainConfig, resume=bool) -> a run with .summary()
+    "overrides": "agents.config:with_overrides",  # (TrainConfig, ["part.field=value"]) -> config
     "gate_config": "agents.config:OutlierGateConfig",
     "fit_gate": "agents.gate_training:fit_checkpoint",  # (path, out, config) -> summary str
 }
@@ -38,6 +39,7 @@ def train_config(
     preset: str,
     progress: bool = True,
     init_actor: Path | None = None,
+    settings: list[str] | None = None,
 ):
     """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied."""
     import dataclasses
@@ -63,7 +65,7 @@ def train_config(
 
         if not torch.cuda.is_available():
             raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
-    config = presets[preset]
+    config = load_object(TRAINING["overrides"])(presets[preset], settings or [])
     experiment = dataclasses.replace(
         config.experiment,
         noise=env,
@@ -120,6 +122,15 @@ def train_command(
             "instead of the preset's imitation phase; its model and task must be the preset's."
         ),
     ] = None,
+    settings: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="Change one setting of the preset, PART.FIELD=VALUE (PART: model, algorithm, "
+            "experiment, task, imitation; agents/config.py documents each field), e.g. "
+            "--set algorithm.anchor_weight=0.1; repeatable.",
+        ),
+    ] = None,
     threads: CommandThreads = 1,
 ) -> None:
     """Train GA-SAC actors (TorchRL collector + replay) with checkpoints and learning curves."""
@@ -127,7 +138,9 @@ def train_command(
     from popbench.threads import limited_threads
 
     run_training = load_object(TRAINING["train"])  # agents.trainer.train
-    config = train_config(env, robots, seed, frames, device, out, preset, init_actor=init_actor)
+    config = train_config(
+        env, robots, seed, frames, device, out, preset, init_actor=init_actor, settings=settings
+    )
     with limited_threads(threads):
         summary = run_training(config, resume=resume).summary()
     typer.echo(summary)
