@@ -295,4 +295,3 @@ def test_train_config_set_changes_one_setting_of_the_preset() -> None:
     assert config.algorithm.reward == "F"  # the rest is the preset's
     with pytest.raises(ValueRangeError, match="PART one of model"):
         train_config("V2", 7, 0, None, "cpu", None, "cpu-residual", settings=["a.b=1"])
-
