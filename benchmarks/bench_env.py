@@ -35,15 +35,22 @@ def first_valid_action(env, generator: torch.Generator) -> tuple[torch.Tensor, t
     return edge, (2 * unit - 1) * core.delta_max
 
 
-def time_core(env, episodes: int) -> tuple[float, int]:
-    """Seconds and agent-steps of core steps over full episodes (resets excluded; the timed loop
-    includes drawing the lowest-valid-edge action from the mask)."""
+def _horizon(env, max_steps: int | None) -> int:
+    """Steps timed per episode: the whole episode, or its first ``max_steps``."""
+    horizon = int(env.core.tensors["num_edges"].max())
+    return horizon if max_steps is None else min(horizon, max_steps)
+
+
+def time_core(env, episodes: int, max_steps: int | None = None) -> tuple[float, int]:
+    """Seconds and agent-steps of core steps over full episodes, or their first ``max_steps``
+    (resets excluded; the timed loop includes drawing the lowest-valid-edge action from the
+    mask)."""
     generator = torch.Generator().manual_seed(0)
     seconds, agent_steps = 0.0, 0
     for _ in range(episodes):
         env.reset()
         core = env.core
-        horizon = int(core.tensors["num_edges"].max())
+        horizon = _horizon(env, max_steps)
         _sync(core.device)
         start = time.perf_counter()
         for _ in range(horizon):
@@ -54,13 +61,14 @@ def time_core(env, episodes: int) -> tuple[float, int]:
     return seconds, agent_steps
 
 
-def time_env(env, episodes: int) -> tuple[float, int]:
-    """Seconds and agent-steps of ``PGOEnv.step`` over full episodes (action drawing excluded)."""
+def time_env(env, episodes: int, max_steps: int | None = None) -> tuple[float, int]:
+    """Seconds and agent-steps of ``PGOEnv.step`` over full episodes, or their first
+    ``max_steps`` (action drawing excluded)."""
     generator = torch.Generator().manual_seed(0)
     seconds, agent_steps = 0.0, 0
     for _ in range(episodes):
         td = env.reset()
-        horizon = int(env.core.tensors["num_edges"].max())
+        horizon = _horizon(env, max_steps)
         for _ in range(horizon):
             edge, delta = first_valid_action(env, generator)
             td["agents", "action", "edge"] = edge
@@ -75,12 +83,12 @@ def time_env(env, episodes: int) -> tuple[float, int]:
     return seconds, agent_steps
 
 
-def time_rollout(env, episodes: int) -> tuple[float, int]:
+def time_rollout(env, episodes: int, max_steps: int | None = None) -> tuple[float, int]:
     """Seconds and agent-steps of ``env.rollout`` with random masked actions."""
     seconds, agent_steps = 0.0, 0
     for _ in range(episodes):
         env.reset()
-        horizon = int(env.core.tensors["num_edges"].max())
+        horizon = _horizon(env, max_steps)
         _sync(env.device)
         start = time.perf_counter()
         td = env.rollout(
@@ -130,8 +138,9 @@ def throughput(args: argparse.Namespace, device: str) -> None:
     start = time.perf_counter()
     env.reset()
     print(f"  reset (problem generation + packing): {time.perf_counter() - start:.3f} s")
-    for name, timer in (("core", time_core), ("env", time_env), ("rollout", time_rollout)):
-        seconds, agent_steps = timer(env, args.episodes)
+    timers = [("core", time_core), ("env", time_env), ("rollout", time_rollout)]
+    for name, timer in timers if args.rollout else timers[:2]:
+        seconds, agent_steps = timer(env, args.episodes, args.max_steps)
         env_steps = agent_steps / (args.batch * args.robots)
         print(
             f"  {name:8s} {agent_steps / seconds:12,.0f} agent-steps/s"
@@ -148,7 +157,15 @@ def scaling(args: argparse.Namespace, device: str) -> None:
         f"  {'robots':>6} {'poses/robot':>11} {'E_max':>6} {'core ms':>8} {'full ms':>8}"
         f" {'env ms':>8} {'core/full':>9}"
     )
-    for robots, poses in ((7, 20), (7, 60), (7, 180), (7, 540), (3, 60), (14, 60)):
+    sizes = [(7, poses) for poses in args.scaling_poses] or [
+        (7, 20),
+        (7, 60),
+        (7, 180),
+        (7, 540),
+        (3, 60),
+        (14, 60),
+    ]
+    for robots, poses in sizes:
         env = make_torchrl_env(
             robots=robots,
             batch_size=args.batch,
@@ -157,9 +174,9 @@ def scaling(args: argparse.Namespace, device: str) -> None:
             poses_per_robot=poses,
             **modes(args),
         )
-        seconds, agent_steps = time_core(env, 1)
+        seconds, agent_steps = time_core(env, 1, args.max_steps)
         core_ms = 1e3 * seconds / (agent_steps / (args.batch * robots))
-        seconds, agent_steps = time_env(env, 1)
+        seconds, agent_steps = time_env(env, 1, args.max_steps)
         env_ms = 1e3 * seconds / (agent_steps / (args.batch * robots))
         full_ms = 1e3 * time_full_recompute(env, 50)
         print(
@@ -186,6 +203,26 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=2)
     parser.add_argument("--device", action="append", help="cpu and/or cuda (default: all found)")
     parser.add_argument("--no-scaling", action="store_true")
+    parser.add_argument(
+        "--max-steps",
+        type=int,
+        default=None,
+        help="time only the first steps of each episode (large graphs: an episode has one step"
+        " per local edge)",
+    )
+    parser.add_argument(
+        "--rollout",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also time env.rollout (it keeps every step's observation: off for large graphs)",
+    )
+    parser.add_argument(
+        "--scaling-poses",
+        type=lambda text: [int(item) for item in text.split(",")],
+        default=[],
+        help="poses per robot of the scaling table at n = 7, e.g. 60,250,1000,1500 (default: a"
+        " fixed set of sizes and team sizes)",
+    )
     parser.add_argument("--correction", default="pose", choices=CORRECTIONS)
     parser.add_argument("--observation", default="paper", choices=OBSERVATIONS)
     parser.add_argument("--action-scale", default="metric", choices=ACTION_SCALES)
