@@ -1,4 +1,4 @@
-"""``popbench train``: GA-SAC actors for the learned methods.
+"""``popbench train``: GA-SAC, MAPPO or IPPO actors for the learned methods.
 
 The trainer lives in ``agents/``, a layer above the core: it is named here by
 ``"module:attribute"`` strings and imported on first use (:func:`popbench.methods.load_object`,
@@ -26,6 +26,7 @@ TRAINING = {
 
 TRAIN_ENVS = ("V1", "V2", "V3")
 TRAIN_DEVICES = ("cpu", "cuda")
+TRAIN_ALGORITHMS = ("ga-sac", "mappo", "ippo")  # agents.config.ALGORITHMS
 
 
 def train_config(
@@ -37,8 +38,11 @@ def train_config(
     out: str | None,
     preset: str,
     progress: bool = True,
+    algorithm: str | None = None,
+    imitation_episodes: int | None = None,
 ):
-    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied."""
+    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied
+    (``algorithm`` and ``imitation_episodes``: None keeps the preset's)."""
     import dataclasses
 
     from popbench.methods import load_object
@@ -55,12 +59,22 @@ def train_config(
         raise ValueRangeError("--device", device, " or ".join(TRAIN_DEVICES))
     if preset not in presets:
         raise ValueRangeError("--preset", preset, " or ".join(presets))
+    if algorithm is not None and algorithm not in TRAIN_ALGORITHMS:
+        raise ValueRangeError("--algorithm", algorithm, " or ".join(TRAIN_ALGORITHMS))
+    if imitation_episodes is not None and imitation_episodes < 0:
+        raise ValueRangeError("--imitation-episodes", imitation_episodes, "an integer ≥ 0")
     if device == "cuda":
         import torch
 
         if not torch.cuda.is_available():
             raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
     config = presets[preset]
+    if algorithm is not None:
+        config = dataclasses.replace(config, algorithm_name=algorithm)
+    if imitation_episodes is not None:
+        imitation = dataclasses.replace(config.imitation, episodes=imitation_episodes)
+        config = dataclasses.replace(config, imitation=imitation)
+    name = config.algorithm_name
     experiment = dataclasses.replace(
         config.experiment,
         noise=env,
@@ -68,7 +82,7 @@ def train_config(
         seed=seed,
         device=device,
         frames=config.experiment.frames if frames is None else frames,
-        out_dir=out or f"runs/ga-sac-{env}-n{robots}-s{seed}",
+        out_dir=out or f"runs/{name}-{env}-n{robots}-s{seed}",
         progress=progress,
     )
     return dataclasses.replace(config, experiment=experiment)
@@ -78,6 +92,7 @@ EPILOG = (
     "Examples:\n\n"
     "  popbench train --env V2 --robots 7 --seed 0\n\n"
     "  popbench train --env V2 --robots 3 --preset cpu-small --frames 20000 --out runs/n3\n\n"
+    "  popbench train --algorithm mappo --preset cpu-mappo --imitation-episodes 0 --out runs/m\n\n"
     "Writes checkpoint.pt, metrics.csv and learning_curve.png into --out; a rerun with the "
     "same --out resumes from checkpoint.pt unless --no-resume."
 )
@@ -92,7 +107,7 @@ def train_command(
     ] = None,
     device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
     out: Annotated[
-        str | None, typer.Option(help="Run directory (default runs/ga-sac-ENV-nN-sS).")
+        str | None, typer.Option(help="Run directory (default runs/ALGORITHM-ENV-nN-sS).")
     ] = None,
     resume: Annotated[
         bool, typer.Option("--resume/--no-resume", help="Continue from OUT/checkpoint.pt.")
@@ -104,17 +119,43 @@ def train_command(
             "(imitation of the expert first, then GA-SAC), cpu-imitation-robust (the same "
             "on problems with injected outliers, with a supervised gate loss) or cpu-residual "
             "(issue 26: a correction head that reads the base step, GA-SAC on the local F with "
-            "a KL anchor to the imitation policy)."
+            "a KL anchor to the imitation policy), cpu-mappo or cpu-ippo (issue 29: MAPPO / IPPO "
+            "in cpu-residual's networks, task and imitation phase; docs/algorithms.md)."
         ),
     ] = "paper",
+    algorithm: Annotated[
+        str | None,
+        typer.Option(
+            help="ga-sac (soft actor-critic, replay), mappo (PPO, centralised value over all "
+            "robots) or ippo (PPO, each robot's own value); all train the same actor. "
+            "Default: the preset's (ga-sac, or mappo / ippo for cpu-mappo / cpu-ippo)."
+        ),
+    ] = None,
+    imitation_episodes: Annotated[
+        int | None,
+        typer.Option(
+            help="Episodes of the imitation phase before RL; 0 starts from scratch "
+            "(default: the preset's)."
+        ),
+    ] = None,
     threads: CommandThreads = 1,
 ) -> None:
-    """Train GA-SAC actors (TorchRL collector + replay) with checkpoints and learning curves."""
+    """Train GA-SAC, MAPPO or IPPO actors (TorchRL collector) with checkpoints and curves."""
     from popbench.methods import load_object
     from popbench.threads import limited_threads
 
     run_training = load_object(TRAINING["train"])  # agents.trainer.train
-    config = train_config(env, robots, seed, frames, device, out, preset)
+    config = train_config(
+        env,
+        robots,
+        seed,
+        frames,
+        device,
+        out,
+        preset,
+        algorithm=algorithm,
+        imitation_episodes=imitation_episodes,
+    )
     with limited_threads(threads):
         summary = run_training(config, resume=resume).summary()
     typer.echo(summary)
