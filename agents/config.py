@@ -303,7 +303,8 @@ class PPOConfig:
         entropy_coeff: weight of the entropy bonus (edge entropy + correction entropy).
         critic_coeff: weight of the value loss.
         max_grad_norm: gradient clipping of every optimiser step.
-        normalize_advantage: standardise the advantages of each minibatch.
+        normalize_advantage: standardise the advantages of each collected batch (over its
+            transitions and robots: one shared policy).
     """
 
     gamma: float = 0.99
