@@ -247,3 +247,26 @@ def test_cli_options_select_the_algorithm_and_start() -> None:
     assert default.experiment.out_dir == "runs/ga-sac-V2-n3-s0"
     with pytest.raises(ValueRangeError, match="--algorithm"):
         train_config("V2", 3, 0, 100, "cpu", None, "cpu-residual", algorithm="sac")
+
+
+@pytest.mark.parametrize("algorithm", ["mappo", "ippo"])
+def test_popbench_train_runs_the_algorithm(tmp_path, capsys, algorithm: str) -> None:
+    """The command end to end: cpu-mappo / cpu-ippo sizes, 2 robots, one 128-frame batch
+    from scratch; the rerun finds the run's checkpoint."""
+    from agents.checkpoint import read_checkpoint
+    from popbench.cli import main
+
+    args = ["train", "--algorithm", algorithm, "--preset", f"cpu-{algorithm}", "--robots", "2"]
+    args += ["--imitation-episodes", "0", "--frames", "128", "--out", str(tmp_path)]
+    assert main(args) == 0
+    assert capsys.readouterr().out.startswith("trained 128 frames")
+    state = read_checkpoint(tmp_path / "checkpoint.pt")
+    assert (state["config"]["algorithm_name"], state["frames"], state["updates"]) == (
+        algorithm,
+        128,
+        8,
+    )
+    assert main(args) == 0
+    assert capsys.readouterr().out.startswith("nothing to train: the run already has 128")
+    assert main(["train", "--algorithm", "sac"]) == 2
+    assert "--algorithm" in capsys.readouterr().err
