@@ -28,6 +28,7 @@ from agents.actor import (
     RECURRENT_KEYS,
     ActorOutput,
     GASACPolicy,
+    HybridActor,
     recurrent_inputs,
     resolve_deterministic,
 )
@@ -42,7 +43,7 @@ class PPOPolicy(GASACPolicy):
     """Reads what GASACPolicy reads; writes ("agents", "action", "edge" | "delta"),
     ("agents", "sample_log_prob") [*, n] and the next recurrent state under ("next", "agents")."""
 
-    def __init__(self, actor) -> None:  # noqa: ANN001 - agents.actor.HybridActor
+    def __init__(self, actor: HybridActor) -> None:
         super().__init__(actor)
         self.out_keys = [
             EDGE_ACTION_KEY,
