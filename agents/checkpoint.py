@@ -7,6 +7,9 @@ Layout (a plain dict, loaded with `torch.load(weights_only=True)`):
     temperatures), "optimisers": {name: state_dict}, "frames": int, "updates": int.
 The replay buffer is not stored: a resumed run refills it (updates restart once it holds one
 minibatch). `load_actor` needs only "config", "dims" and "actor" — what prop-v1 uses at inference.
+A MAPPO / IPPO checkpoint (agents.ppo_trainer) has the same "config" (its "algorithm_name"),
+"dims", "actor", "frames" and "updates"; its "loss" is ClipPPOLoss's state_dict (actor, value
+function), "optimisers" {"ppo": …}, and "reward_scale" the run's reward scale c.
 Optional "outlier_gate": {"config": OutlierGateConfig as a dict, "encoder": state_dict,
 "threshold": float, "epochs": [{epoch, loss, validation_auc}], "best_epoch": int, "seconds":
 float}, the fitted outlier gate (agents.gate_training, `add_outlier_gate`).

@@ -1,4 +1,5 @@
-"""Configuration dataclasses for GA-SAC, split BenchMARL-style into model / algorithm / experiment.
+"""Configuration dataclasses for GA-SAC, MAPPO and IPPO, split BenchMARL-style into model /
+algorithm / experiment / task.
 
 Values are the paper's (§IV-A, REFERENCES.md §1.5) where it gives them; every other value is a
 choice written down here with its reason (REFERENCES.md §1.8 lists the gaps).
@@ -293,15 +294,58 @@ class OutlierGateConfig:
     seed: int = 0
 
 
+ALGORITHMS = ("ga-sac", "mappo", "ippo")  # TrainConfig.algorithm_name
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """MAPPO / IPPO hyper-parameters (agents.ppo; docs/algorithms.md gives the reasons).
+
+    Attributes:
+        gamma: discount of the GAE and of the value targets.
+        lmbda: GAE's λ (torchrl.objectives.value.GAE).
+        clip_epsilon: PPO's ratio clip ε.
+        epochs: passes over each collected batch.
+        minibatch_size: transitions (joint steps of the n robots) per optimisation step.
+        lr: Adam learning rate of the actor and the value function (one optimiser).
+        entropy_coeff: weight of the entropy bonus (edge entropy + correction entropy).
+        critic_coeff: weight of the value loss.
+        max_grad_norm: gradient clipping of every optimiser step.
+        normalize_advantage: standardise the advantages of each collected batch (over its
+            transitions and robots: one shared policy).
+    """
+
+    gamma: float = 0.99
+    lmbda: float = 0.95
+    clip_epsilon: float = 0.2
+    epochs: int = 4
+    minibatch_size: int = 64
+    lr: float = 3e-4
+    entropy_coeff: float = 1e-3
+    critic_coeff: float = 1.0
+    max_grad_norm: float = 10.0
+    normalize_advantage: bool = True
+
+
 @dataclass(frozen=True)
 class TrainConfig:
-    """The parts together (what `popbench train` builds and `agents.trainer.train` reads)."""
+    """The parts together (what `popbench train` builds and `agents.trainer.train` reads).
+
+    `algorithm_name` selects the learner (ALGORITHMS): "ga-sac" reads `algorithm`, "mappo"
+    (centralised value) and "ippo" (per-robot value) read `ppo`; both read the rest.
+    """
 
     model: ModelConfig = field(default_factory=ModelConfig)
     algorithm: AlgorithmConfig = field(default_factory=AlgorithmConfig)
     experiment: ExperimentConfig = field(default_factory=ExperimentConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    algorithm_name: str = "ga-sac"
+
+    def __post_init__(self) -> None:
+        if self.algorithm_name not in ALGORITHMS:
+            raise ValueError(f"algorithm_name {self.algorithm_name!r} is not one of {ALGORITHMS}")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (JSON-serialisable) for checkpoints."""
@@ -316,6 +360,8 @@ class TrainConfig:
             experiment=_build(ExperimentConfig, data.get("experiment", {})),
             task=_build(TaskConfig, data.get("task", {})),
             imitation=_build(ImitationConfig, data.get("imitation", {})),
+            ppo=_build(PPOConfig, data.get("ppo", {})),
+            algorithm_name=data.get("algorithm_name", "ga-sac"),
         )
 
 
@@ -327,7 +373,7 @@ def with_overrides(config: TrainConfig, settings: list[str]) -> TrainConfig:
     `ValueRangeError` names a setting that does not fit."""
     from popbench.errors import ValueRangeError
 
-    parts = {f.name: f.name for f in fields(TrainConfig)}
+    parts = [f.name for f in fields(config) if dataclasses.is_dataclass(getattr(config, f.name))]
     for setting in settings:
         key, equals, text = setting.partition("=")
         part, dot, name = key.strip().partition(".")
@@ -479,10 +525,16 @@ CPU_RESIDUAL = dataclasses.replace(
         critic_patience=4,
     ),
 )
+# MAPPO / IPPO in cpu-residual's setting (issue 29, docs/algorithms.md): its networks, task,
+# reward (the local F, no terminal bonus), experiment and imitation phase; γ = 0.9 as GA-SAC's
+# cpu presets. `--imitation-episodes 0` starts from scratch.
+CPU_PPO = dataclasses.replace(CPU_RESIDUAL, ppo=PPOConfig(gamma=CPU_RESIDUAL.algorithm.gamma))
 PRESETS: dict[str, TrainConfig] = {
     "paper": TrainConfig(),
     "cpu-small": CPU_SMALL,
     "cpu-imitation": CPU_IMITATION,
     "cpu-imitation-robust": CPU_IMITATION_ROBUST,
     "cpu-residual": CPU_RESIDUAL,
+    "cpu-mappo": dataclasses.replace(CPU_PPO, algorithm_name="mappo"),
+    "cpu-ippo": dataclasses.replace(CPU_PPO, algorithm_name="ippo"),
 }

@@ -36,6 +36,26 @@ METRIC_FIELDS = (
     "wall_s",
 )
 
+# metrics.csv of a MAPPO / IPPO run (agents.ppo_trainer): the losses of ClipPPOLoss (mean over
+# the batch's minibatches and epochs), its entropy, approximate KL, clip fraction and the value
+# function's explained variance, and the reward scale set on the first batch.
+PPO_METRIC_FIELDS = (
+    "frames",
+    "updates",
+    "episodes",
+    "episode_return",
+    "loss_objective",
+    "loss_critic",
+    "loss_entropy",
+    "entropy",
+    "kl_approx",
+    "clip_fraction",
+    "explained_variance",
+    "reward_scale",
+    "eval_f_reduction",
+    "wall_s",
+)
+
 
 class EpisodeTracker:
     """Per-environment running returns (mean over agents) across collector batches."""
@@ -58,12 +78,15 @@ class EpisodeTracker:
         return finished
 
 
-def truncate_metrics(metrics_path: Path, frames: int) -> float:
+def truncate_metrics(
+    metrics_path: Path, frames: int, fields: tuple[str, ...] = METRIC_FIELDS
+) -> float:
     """Keep the metrics rows up to `frames` (a checkpoint's); their last wall_s (0 if none).
 
     A run stopped between two checkpoints has logged batches past its checkpoint; the resumed
     run collects those frames again, so their rows go. The file is rewritten atomically (with
-    the current columns, should an older run have written others)."""
+    the current columns `fields`, the run's algorithm's, should an older run have written
+    others)."""
     if not metrics_path.is_file():
         return 0.0
     with metrics_path.open(newline="") as handle:
@@ -78,10 +101,10 @@ def truncate_metrics(metrics_path: Path, frames: int) -> float:
             return math.nan
 
     kept = [row for row in rows if frames_of(row) <= frames]
-    if len(kept) < len(rows) or tuple(fieldnames or ()) != METRIC_FIELDS:
+    if len(kept) < len(rows) or tuple(fieldnames or ()) != fields:
         temporary = metrics_path.with_suffix(".csv.tmp")
         with temporary.open("w", newline="") as handle:
-            writer = csv.DictWriter(handle, METRIC_FIELDS, extrasaction="ignore", restval="")
+            writer = csv.DictWriter(handle, fields, extrasaction="ignore", restval="")
             writer.writeheader()
             writer.writerows(kept)
         os.replace(temporary, metrics_path)

@@ -58,21 +58,22 @@ def make_env(config: TrainConfig, batch_size: int, seed: int, **options: Any):
     )
 
 
-def build_session(config: TrainConfig) -> Session:
-    """Env (+ recurrent-state primer), actor, critic, loss, target updater and optimisers."""
+def training_env(
+    config: TrainConfig, labels: bool = False
+) -> tuple[Any, TrainConfig, dict[str, int]]:
+    """The training env (the experiment's outliers, the algorithm's reward and terminal bonus;
+    `labels`: the expert labels the supervised terms read), `config` with the actor's output
+    bound set to the action's (Δmax, or the whitened bound: TaskConfig), and the dimensions
+    {"node", "edge": feature widths, "agents": n, "choices": E + 1}."""
     experiment, algorithm = config.experiment, config.algorithm
-    torch.manual_seed(experiment.seed)
-    # the training env: the experiment's outliers, and the labels the supervised terms read
-    supervised = algorithm.bc_weight > 0 or algorithm.gate_weight > 0
     training_options: dict[str, Any] = {
         "outlier_rate_max": experiment.outlier_rate_max,
         "reward": algorithm.reward,
         "terminal_bonus": algorithm.terminal_bonus,
     }
-    if supervised:
+    if labels:
         training_options["labels"] = True
     base_env = make_env(config, experiment.num_envs, experiment.seed, **training_options)
-    # the actor's output bound is the action's: Δmax, or the whitened bound (TaskConfig)
     delta_max = tuple(float(v) for v in base_env.core.action_bound.cpu())
     config = dataclasses.replace(
         config, model=dataclasses.replace(config.model, delta_max=delta_max)
@@ -84,6 +85,15 @@ def build_session(config: TrainConfig) -> Session:
         "agents": experiment.robots,
         "choices": base_env.dims.edges + 1,
     }
+    return base_env, config, dims
+
+
+def build_session(config: TrainConfig) -> Session:
+    """Env (+ recurrent-state primer), actor, critic, loss, target updater and optimisers."""
+    experiment, algorithm = config.experiment, config.algorithm
+    torch.manual_seed(experiment.seed)
+    supervised = algorithm.bc_weight > 0 or algorithm.gate_weight > 0
+    base_env, config, dims = training_env(config, labels=supervised)
     actor = HybridActor(dims["node"], dims["edge"], config.model).to(experiment.device)
     critic = CentralCritic(dims["node"], dims["edge"], dims["agents"], config.model)
     policy = GASACPolicy(actor)

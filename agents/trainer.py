@@ -1,4 +1,5 @@
-"""GA-SAC training: TorchRL `Collector` (0.14's SyncDataCollector) → uniform replay → GASACLoss.
+"""Training: TorchRL `Collector` (0.14's SyncDataCollector) → GA-SAC (uniform replay → GASACLoss),
+or MAPPO / IPPO (agents.ppo_trainer: GAE → ClipPPOLoss), by `TrainConfig.algorithm_name`.
 
 `train(config)` (what `popbench train` calls) writes into `config.experiment.out_dir`:
     checkpoint.pt   latest state (agents.checkpoint); `resume=True` continues from it
@@ -42,9 +43,9 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from tensordict import TensorDictBase
@@ -200,9 +201,35 @@ class TrainResult:
         return f"trained {self.frames_trained} frames; {where}"
 
 
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """How `train` builds, saves, restores and trains one algorithm's session.
+
+    `batches(session)` returns the per-batch learning step of a (possibly resumed) run: a
+    `BatchLearner` (e.g. GA-SAC's replay and updates, agents.ppo_trainer's PPO epochs).
+    """
+
+    name: str  # the progress bar's label
+    build: Callable[[TrainConfig], Any]
+    restore: Callable[[Any, dict[str, Any]], None]
+    state: Callable[[Any], dict[str, Any]]
+    batches: Callable[[Any], BatchLearner]
+    fields: tuple[str, ...]  # metrics.csv's columns
+
+
+def learner_of(config: TrainConfig) -> Learner:
+    """The `Learner` of `config.algorithm_name` (the PPO one imported on first use)."""
+    if config.algorithm_name == "ga-sac":
+        return GASAC
+    from agents.ppo_trainer import PPO
+
+    return PPO
+
+
 def train(config: TrainConfig, resume: bool = True) -> TrainResult:
-    """Train GA-SAC as configured (see the module docstring)."""
+    """Train `config.algorithm_name` (GA-SAC, MAPPO or IPPO) as configured (module docstring)."""
     started = time.perf_counter()
+    learner = learner_of(config)
     experiment = config.experiment
     out_dir = Path(experiment.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -212,24 +239,23 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
     if resume and checkpoint.is_file():
         state = read_checkpoint(checkpoint, experiment.device)
         check_resume_config(checkpoint, state, config)
-    session = build_session(config)
+    session = learner.build(config)
     wall_offset = 0.0
     if state is not None:
-        restore(session, state)
-        wall_offset = truncate_metrics(metrics_path, session.frames)
+        learner.restore(session, state)
+        wall_offset = truncate_metrics(metrics_path, session.frames, learner.fields)
     elif metrics_path.exists():
         metrics_path.unlink()
-    if session.frames == 0:  # before any GA-SAC frame: the start policy, the anchor's π₀
+    if session.frames == 0:  # before any RL frame: the start policy (GA-SAC's anchor π₀)
         if experiment.init_actor is not None:
             start_from_actor(session, Path(experiment.init_actor), out_dir)
         elif config.imitation.episodes > 0:
             run_imitation_phase(session, out_dir)
-        session.loss.set_anchor(session.actor)
     resumed_from = session.frames
     remaining = experiment.frames - session.frames
     if remaining > 0:
-        _run(session, remaining, checkpoint, metrics_path, wall_offset)
-    save_checkpoint(checkpoint, session_state(session))
+        _run(session, learner, remaining, checkpoint, metrics_path, wall_offset)
+    save_checkpoint(checkpoint, learner.state(session))
     plot_learning_curve(metrics_path, out_dir / "learning_curve")
     return TrainResult(
         out_dir,
@@ -291,11 +317,74 @@ def _next_multiple(frames: int, interval: int) -> int:
     return (frames // interval + 1) * interval
 
 
+class BatchLearner(Protocol):
+    """One algorithm's learning from each collected batch (used by `_run`)."""
+
+    def learn(self, data: TensorDictBase) -> dict[str, Any]:
+        """Learn from a collector batch [num_envs, T]; the metrics row's entries it sets."""
+
+    def evaluate(self, eval_env: Any) -> dict[str, Any]:
+        """Extra entries of the row at an evaluation point (after the held-out F reduction)."""
+
+
+class GASACBatches:
+    """GA-SAC's per-batch step: replay, warm-up (calibration, held-out transitions for the
+    critic warm-up rule) and `updates_per_batch` optimisation steps."""
+
+    def __init__(self, session: Session) -> None:
+        experiment, algorithm = session.config.experiment, session.config.algorithm
+        self.session = session
+        self.buffer = ReplayBuffer(
+            storage=LazyTensorStorage(algorithm.buffer_size, device=experiment.device),
+            batch_size=algorithm.batch_size,
+        )
+        # A resumed run has lost its buffer: it needs only one minibatch before updating again.
+        warmup = algorithm.warmup_frames if session.frames == 0 else algorithm.batch_size
+        self.warmup_end = session.frames + warmup
+        self.warmup_rule = CriticWarmup(algorithm.critic_patience)
+        self.heldout: TensorDictBase | None = None  # transitions never replayed (warm-up rule)
+        if session.frames == 0:  # the fine-tuning's start policy is the anchor's π₀
+            session.loss.set_anchor(session.actor)
+
+    def learn(self, data: TensorDictBase) -> dict[str, Any]:
+        session, buffer = self.session, self.buffer
+        row: dict[str, Any] = {}
+        transitions = data.reshape(-1)
+        if self.heldout is None and session.updates == 0 and session.frames >= self.warmup_end:
+            self.heldout = transitions[: transitions.numel() // 4]  # a quarter, never replayed
+            buffer.extend(transitions[transitions.numel() // 4 :])
+            row.update(calibrate(session, buffer[:]))
+        else:
+            buffer.extend(transitions)
+        algorithm = session.config.algorithm
+        if session.frames >= self.warmup_end and len(buffer) >= algorithm.batch_size:
+            for _ in range(algorithm.updates_per_batch):
+                if not session.actor_learns and self.warmup_rule.over(session, self.heldout):
+                    session.actor_learns = True
+                with interrupts_deferred():  # never stop half-way through a step
+                    logs = optimise(session, buffer.sample())
+                row.update({k: v for k, v in logs.items() if k in METRIC_FIELDS})
+        return row
+
+    def evaluate(self, eval_env: Any) -> dict[str, Any]:
+        if self.session.updates > 0:
+            return {"critic_probe": critic_probe(self.session, eval_env)}
+        return {}
+
+
+GASAC = Learner("GA-SAC", build_session, restore, session_state, GASACBatches, METRIC_FIELDS)
+
+
 def _run(
-    session: Session, remaining: int, checkpoint: Path, metrics_path: Path, wall_offset: float
+    session: Any,
+    learner: Learner,
+    remaining: int,
+    checkpoint: Path,
+    metrics_path: Path,
+    wall_offset: float,
 ) -> None:
-    """Collect `remaining` more frames (rounded up to whole batches), updating and logging."""
-    experiment, algorithm = session.config.experiment, session.config.algorithm
+    """Collect `remaining` more frames (rounded up to whole batches), learning and logging."""
+    experiment = session.config.experiment
     frames_per_batch = max(experiment.num_envs, experiment.frames_per_batch)
     frames_per_batch -= frames_per_batch % experiment.num_envs
     collector = Collector(
@@ -306,72 +395,46 @@ def _run(
         device=experiment.device,
         auto_register_policy_transforms=False,  # the policy needs only its own primer
     )
-    buffer = ReplayBuffer(
-        storage=LazyTensorStorage(algorithm.buffer_size, device=experiment.device),
-        batch_size=algorithm.batch_size,
-    )
-    # A resumed run has lost its buffer: it needs only one minibatch before updating again.
-    warmup = algorithm.warmup_frames if session.frames == 0 else algorithm.batch_size
-    warmup_end = session.frames + warmup
+    batches = learner.batches(session)
     eval_env = make_env(
         session.config, experiment.eval_problems, experiment.seed + EVAL_SEED_OFFSET, reward="F"
     )
     tracker = EpisodeTracker(experiment.num_envs)
-    warmup_rule = CriticWarmup(algorithm.critic_patience)
-    heldout: TensorDictBase | None = None  # transitions kept out of the buffer (warm-up rule)
     next_checkpoint = _next_multiple(session.frames, experiment.checkpoint_interval)
     next_eval = _next_multiple(session.frames, experiment.eval_interval)
     start = time.perf_counter() - wall_offset
-    progress = _progress(experiment.progress, experiment.frames, session.frames)
+    progress = _progress(learner.name, experiment.progress, experiment.frames, session.frames)
     pending: dict[str, Any] | None = None  # the row of a batch counted but not yet logged
     try:
         with metrics_path.open("a", newline="") as handle:
-            writer = csv.DictWriter(handle, METRIC_FIELDS)
+            writer = csv.DictWriter(handle, learner.fields)
             if handle.tell() == 0:
                 writer.writeheader()
             try:
                 for data in collector:
                     session.frames += data.numel()
                     returns = tracker.update(data)
-                    pending = dict.fromkeys(METRIC_FIELDS, "")
+                    pending = dict.fromkeys(learner.fields, "")
                     pending.update(
                         frames=session.frames,
                         updates=session.updates,
                         episodes=tracker.episodes,
                         episode_return=sum(returns) / len(returns) if returns else "",
                     )
-                    transitions = data.reshape(-1)
-                    if heldout is None and session.updates == 0 and session.frames >= warmup_end:
-                        heldout = transitions[
-                            : transitions.numel() // 4
-                        ]  # a quarter, never replayed
-                        transitions = transitions[transitions.numel() // 4 :]
-                        buffer.extend(transitions)
-                        pending.update(calibrate(session, buffer[:]))
-                    else:
-                        buffer.extend(transitions)
-                    if session.frames >= warmup_end and len(buffer) >= algorithm.batch_size:
-                        for _ in range(algorithm.updates_per_batch):
-                            if not session.actor_learns and warmup_rule.over(session, heldout):
-                                session.actor_learns = True
-                            with interrupts_deferred():  # never stop half-way through a step
-                                logs = optimise(session, buffer.sample())
-                                pending.update(
-                                    {k: v for k, v in logs.items() if k in METRIC_FIELDS},
-                                    updates=session.updates,
-                                )
+                    updates = session.updates
+                    pending.update(batches.learn(data), updates=session.updates)
+                    if session.updates > updates:
                         collector.update_policy_weights_()
                     if session.frames >= next_eval:
                         pending["eval_f_reduction"] = evaluate_f_reduction(session, eval_env)
-                        if session.updates > 0:
-                            pending["critic_probe"] = critic_probe(session, eval_env)
+                        pending.update(batches.evaluate(eval_env))
                         next_eval = _next_multiple(session.frames, experiment.eval_interval)
                     row, pending = pending, None
                     row["wall_s"] = round(time.perf_counter() - start, 3)
                     writer.writerow(row)
                     handle.flush()
                     if session.frames >= next_checkpoint:
-                        save_checkpoint(checkpoint, session_state(session))
+                        save_checkpoint(checkpoint, learner.state(session))
                         next_checkpoint = _next_multiple(
                             session.frames, experiment.checkpoint_interval
                         )
@@ -384,7 +447,7 @@ def _run(
                 if pending is not None:  # log the interrupted batch so the CSV matches
                     pending["wall_s"] = round(time.perf_counter() - start, 3)
                     writer.writerow(pending)
-                save_checkpoint(checkpoint, session_state(session))
+                save_checkpoint(checkpoint, learner.state(session))
                 raise KeyboardInterrupt(
                     f"checkpoint of {session.frames} frames saved in {checkpoint}"
                 ) from None
@@ -394,9 +457,9 @@ def _run(
         collector.shutdown()
 
 
-def _progress(enabled: bool, total: int, initial: int):
+def _progress(name: str, enabled: bool, total: int, initial: int):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, initial=initial, unit="frame", desc="GA-SAC")
+    return tqdm(total=total, initial=initial, unit="frame", desc=name)

@@ -1,4 +1,4 @@
-"""``popbench train``: GA-SAC actors for the learned methods.
+"""``popbench train``: GA-SAC, MAPPO or IPPO actors for the learned methods.
 
 The trainer lives in ``agents/``, a layer above the core: it is named here by
 ``"module:attribute"`` strings and imported on first use (:func:`popbench.methods.load_object`,
@@ -27,6 +27,7 @@ TRAINING = {
 
 TRAIN_ENVS = ("V1", "V2", "V3")
 TRAIN_DEVICES = ("cpu", "cuda")
+TRAIN_ALGORITHMS = ("ga-sac", "mappo", "ippo")  # agents.config.ALGORITHMS
 
 
 def train_config(
@@ -40,8 +41,11 @@ def train_config(
     progress: bool = True,
     init_actor: Path | None = None,
     settings: list[str] | None = None,
+    algorithm: str | None = None,
+    imitation_episodes: int | None = None,
 ):
-    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied."""
+    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied
+    (``algorithm`` and ``imitation_episodes``: None keeps the preset's)."""
     import dataclasses
 
     from popbench.methods import load_object
@@ -60,12 +64,22 @@ def train_config(
         raise ValueRangeError("--preset", preset, " or ".join(presets))
     if init_actor is not None and not init_actor.is_file():
         raise ValueRangeError("--init-actor", str(init_actor), "an existing actor checkpoint")
+    if algorithm is not None and algorithm not in TRAIN_ALGORITHMS:
+        raise ValueRangeError("--algorithm", algorithm, " or ".join(TRAIN_ALGORITHMS))
+    if imitation_episodes is not None and imitation_episodes < 0:
+        raise ValueRangeError("--imitation-episodes", imitation_episodes, "an integer ≥ 0")
     if device == "cuda":
         import torch
 
         if not torch.cuda.is_available():
             raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
     config = load_object(TRAINING["overrides"])(presets[preset], settings or [])
+    if algorithm is not None:
+        config = dataclasses.replace(config, algorithm_name=algorithm)
+    if imitation_episodes is not None:
+        imitation = dataclasses.replace(config.imitation, episodes=imitation_episodes)
+        config = dataclasses.replace(config, imitation=imitation)
+    name = config.algorithm_name
     experiment = dataclasses.replace(
         config.experiment,
         noise=env,
@@ -73,7 +87,7 @@ def train_config(
         seed=seed,
         device=device,
         frames=config.experiment.frames if frames is None else frames,
-        out_dir=out or f"runs/ga-sac-{env}-n{robots}-s{seed}",
+        out_dir=out or f"runs/{name}-{env}-n{robots}-s{seed}",
         progress=progress,
         init_actor=None if init_actor is None else str(init_actor),
     )
@@ -86,6 +100,7 @@ EPILOG = (
     "  popbench train --env V2 --robots 3 --preset cpu-small --frames 20000 --out runs/n3\n\n"
     "  popbench train --preset cpu-residual --init-actor "
     "agents/checkpoints/imitation-V2-n7-residual.pt --out runs/ft\n\n"
+    "  popbench train --algorithm mappo --preset cpu-mappo --imitation-episodes 0 --out runs/m\n\n"
     "Writes checkpoint.pt, metrics.csv and learning_curve.png into --out; a rerun with the "
     "same --out resumes from checkpoint.pt unless --no-resume."
 )
@@ -100,7 +115,7 @@ def train_command(
     ] = None,
     device: Annotated[str, typer.Option(help="cpu or cuda.")] = "cpu",
     out: Annotated[
-        str | None, typer.Option(help="Run directory (default runs/ga-sac-ENV-nN-sS).")
+        str | None, typer.Option(help="Run directory (default runs/ALGORITHM-ENV-nN-sS).")
     ] = None,
     resume: Annotated[
         bool, typer.Option("--resume/--no-resume", help="Continue from OUT/checkpoint.pt.")
@@ -110,16 +125,17 @@ def train_command(
         typer.Option(
             help="Model/algorithm sizes: paper (5×128 GNN, §IV-A), cpu-small, cpu-imitation "
             "(imitation of the expert first, then GA-SAC), cpu-imitation-robust (the same "
-            "on problems with injected outliers, with a supervised gate loss) or cpu-residual "
+            "on problems with injected outliers, with a supervised gate loss), cpu-residual "
             "(issue 26: a correction head that reads the base step, GA-SAC on the local F with "
-            "a KL anchor to the imitation policy)."
+            "a KL anchor to the imitation policy), cpu-mappo or cpu-ippo (issue 29: MAPPO / IPPO "
+            "in cpu-residual's networks, task and imitation phase; docs/algorithms.md)."
         ),
     ] = "paper",
     init_actor: Annotated[
         Path | None,
         typer.Option(
-            help="Start GA-SAC from this actor checkpoint (e.g. a committed imitation actor) "
-            "instead of the preset's imitation phase; its model and task must be the preset's."
+            help="Start from this actor checkpoint (e.g. a committed imitation actor) instead "
+            "of the preset's imitation phase; its model and task must be the preset's."
         ),
     ] = None,
     settings: Annotated[
@@ -127,19 +143,44 @@ def train_command(
         typer.Option(
             "--set",
             help="Change one setting of the preset, PART.FIELD=VALUE (PART: model, algorithm, "
-            "experiment, task, imitation; agents/config.py documents each field), e.g. "
+            "ppo, experiment, task, imitation; agents/config.py documents each field), e.g. "
             "--set algorithm.anchor_weight=0.1; repeatable.",
+        ),
+    ] = None,
+    algorithm: Annotated[
+        str | None,
+        typer.Option(
+            help="ga-sac (soft actor-critic, replay), mappo (PPO, centralised value over all "
+            "robots) or ippo (PPO, each robot's own value); all train the same actor. "
+            "Default: the preset's (ga-sac, or mappo / ippo for cpu-mappo / cpu-ippo)."
+        ),
+    ] = None,
+    imitation_episodes: Annotated[
+        int | None,
+        typer.Option(
+            help="Episodes of the imitation phase before RL; 0 starts from scratch "
+            "(default: the preset's)."
         ),
     ] = None,
     threads: CommandThreads = 1,
 ) -> None:
-    """Train GA-SAC actors (TorchRL collector + replay) with checkpoints and learning curves."""
+    """Train GA-SAC, MAPPO or IPPO actors (TorchRL collector) with checkpoints and curves."""
     from popbench.methods import load_object
     from popbench.threads import limited_threads
 
     run_training = load_object(TRAINING["train"])  # agents.trainer.train
     config = train_config(
-        env, robots, seed, frames, device, out, preset, init_actor=init_actor, settings=settings
+        env,
+        robots,
+        seed,
+        frames,
+        device,
+        out,
+        preset,
+        init_actor=init_actor,
+        settings=settings,
+        algorithm=algorithm,
+        imitation_episodes=imitation_episodes,
     )
     with limited_threads(threads):
         summary = run_training(config, resume=resume).summary()
