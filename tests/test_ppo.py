@@ -270,3 +270,21 @@ def test_popbench_train_runs_the_algorithm(tmp_path, capsys, algorithm: str) -> 
     assert capsys.readouterr().out.startswith("nothing to train: the run already has 128")
     assert main(["train", "--algorithm", "sac"]) == 2
     assert "--algorithm" in capsys.readouterr().err
+
+
+def test_ppo_starts_from_a_given_actor(tmp_path) -> None:
+    """`--init-actor` starts a PPO run as it starts a GA-SAC one (the comparison's protocol)."""
+    from agents.checkpoint import read_checkpoint, save_checkpoint
+    from agents.trainer import train
+
+    train(tiny(tmp_path / "first", "ippo", 32), resume=False)
+    start = read_checkpoint(tmp_path / "first" / "checkpoint.pt")
+    start["actor"] = {key: value + 0.01 for key, value in start["actor"].items()}
+    given = save_checkpoint(tmp_path / "given.pt", start)
+    config = tiny(tmp_path / "mappo", "mappo", 32)
+    config = dataclasses.replace(
+        config, experiment=dataclasses.replace(config.experiment, init_actor=str(given))
+    )
+    train(config, resume=False)
+    copied = read_checkpoint(tmp_path / "mappo" / "imitation-actor.pt")["actor"]
+    assert all(torch.equal(copied[key], start["actor"][key]) for key in start["actor"])
