@@ -20,6 +20,7 @@ TRAINING = {
     "presets": "agents.config:PRESETS",  # dict[str, agents.config.TrainConfig]
     "train": "agents.trainer:train",  # (TrainConfig, resume=bool) -> a run with .summary()
     "overrides": "agents.config:with_overrides",  # (TrainConfig, ["part.field=value"]) -> config
+    "algorithms": "agents.config:ALGORITHMS",  # the names of --algorithm
     "gate_config": "agents.config:OutlierGateConfig",
     "fit_gate": "agents.gate_training:fit_checkpoint",  # (path, out, config) -> summary str
 }
@@ -27,7 +28,6 @@ TRAINING = {
 
 TRAIN_ENVS = ("V1", "V2", "V3")
 TRAIN_DEVICES = ("cpu", "cuda")
-TRAIN_ALGORITHMS = ("ga-sac", "mappo", "ippo")  # agents.config.ALGORITHMS
 
 
 def train_config(
@@ -51,6 +51,7 @@ def train_config(
     from popbench.methods import load_object
 
     presets = load_object(TRAINING["presets"])  # agents.config.PRESETS
+    algorithms = load_object(TRAINING["algorithms"])
 
     if env not in TRAIN_ENVS:
         raise ValueRangeError("--env", env, " or ".join(TRAIN_ENVS))
@@ -64,8 +65,8 @@ def train_config(
         raise ValueRangeError("--preset", preset, " or ".join(presets))
     if init_actor is not None and not init_actor.is_file():
         raise ValueRangeError("--init-actor", str(init_actor), "an existing actor checkpoint")
-    if algorithm is not None and algorithm not in TRAIN_ALGORITHMS:
-        raise ValueRangeError("--algorithm", algorithm, " or ".join(TRAIN_ALGORITHMS))
+    if algorithm is not None and algorithm not in algorithms:
+        raise ValueRangeError("--algorithm", algorithm, " or ".join(algorithms))
     if imitation_episodes is not None and imitation_episodes < 0:
         raise ValueRangeError("--imitation-episodes", imitation_episodes, "an integer ≥ 0")
     if device == "cuda":
@@ -73,12 +74,11 @@ def train_config(
 
         if not torch.cuda.is_available():
             raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
+    if imitation_episodes is not None:  # a shorthand of --set imitation.episodes=N
+        settings = [*(settings or []), f"imitation.episodes={imitation_episodes}"]
     config = load_object(TRAINING["overrides"])(presets[preset], settings or [])
     if algorithm is not None:
         config = dataclasses.replace(config, algorithm_name=algorithm)
-    if imitation_episodes is not None:
-        imitation = dataclasses.replace(config.imitation, episodes=imitation_episodes)
-        config = dataclasses.replace(config, imitation=imitation)
     name = config.algorithm_name
     experiment = dataclasses.replace(
         config.experiment,
