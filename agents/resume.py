@@ -16,12 +16,13 @@ _CLI_OPTIONS = {"noise": "--env", "robots": "--robots", "seed": "--seed"}
 
 
 def _comparable(config: TrainConfig, drop_cli: bool) -> dict[str, Any]:
-    """Flat {"part.field": value} of the fields a resumed run must keep (delta_max comes from
-    the environment, not the request); `drop_cli` also leaves out --env/--robots/--seed. The
-    PPO options count only for a PPO run (GA-SAC does not read them)."""
+    """Flat {"part.field": value} of the fields a resumed run must keep, the environment's task
+    and the imitation phase included (delta_max comes from the environment, not the request);
+    `drop_cli` also leaves out --env/--robots/--seed. The PPO options count only for a PPO run
+    (GA-SAC does not read them)."""
     dropped = set(RESUME_FREE_FIELDS) | (set(_CLI_OPTIONS) if drop_cli else set())
     flat: dict[str, Any] = {"algorithm_name": config.algorithm_name}
-    parts = ("model", "algorithm", "experiment")
+    parts = ("model", "algorithm", "experiment", "task", "imitation")
     if config.algorithm_name != "ga-sac":
         parts += ("ppo",)
     for part in parts:

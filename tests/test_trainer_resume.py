@@ -134,10 +134,20 @@ def test_resume_with_other_options_is_a_one_line_error(tmp_path) -> None:
         train(dataclasses.replace(tiny(tmp_path, 64), model=model), resume=True)
     assert (tmp_path / "metrics.csv").read_text() == before  # nothing was appended
 
-    # device, frames, out_dir and progress may change; --no-resume starts a new run.
+    # the environment's task and the imitation phase are part of the run, as the networks are
     from agents.resume import resume_differences
 
     stored = tiny(tmp_path, 32)
+    task = dataclasses.replace(stored.task, base="gauss-newton")
+    imitation = dataclasses.replace(stored.imitation, episodes=3)
+    assert resume_differences(stored, dataclasses.replace(stored, task=task)) == [
+        "task.base none (requested gauss-newton)"
+    ]
+    assert resume_differences(stored, dataclasses.replace(stored, imitation=imitation)) == [
+        "imitation.episodes 0 (requested 3)"
+    ]
+
+    # device, frames, out_dir and progress may change; --no-resume starts a new run.
     free = dataclasses.replace(
         stored.experiment, device="cuda", frames=10**6, out_dir="elsewhere", progress=True
     )
