@@ -3,6 +3,9 @@ or MAPPO / IPPO (agents.ppo_trainer: GAE → ClipPPOLoss), by `TrainConfig.algor
 
 `train(config)` (what `popbench train` calls) writes into `config.experiment.out_dir`:
     checkpoint.pt   latest state (agents.checkpoint); `resume=True` continues from it
+    snapshots/actor-FRAMES.pt  the actor alone (agents.checkpoint.save_snapshot) at the start
+                    (0 frames: the imitation / --init-actor / untrained start), at every
+                    checkpoint and at the end: the points of the held-out learning curves
     metrics.csv     one row per collector batch: frames, updates, episodes, episode_return (mean
                     over episodes finished in the batch of the per-agent-mean return), losses,
                     temperatures, edge entropy, mean log π(δ), mean Q of the taken actions,
@@ -54,7 +57,7 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
-from agents.checkpoint import read_checkpoint, save_checkpoint
+from agents.checkpoint import read_checkpoint, save_checkpoint, save_snapshot
 from agents.config import TrainConfig
 from agents.diagnostics import critic_probe
 from agents.imitation import run_phase as run_imitation_phase
@@ -251,11 +254,14 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
             start_from_actor(session, Path(experiment.init_actor), out_dir)
         elif config.imitation.episodes > 0:
             run_imitation_phase(session, out_dir)
+        save_snapshot(out_dir, learner.state(session))
     resumed_from = session.frames
     remaining = experiment.frames - session.frames
     if remaining > 0:
         _run(session, learner, remaining, checkpoint, metrics_path, wall_offset)
-    save_checkpoint(checkpoint, learner.state(session))
+    final = learner.state(session)
+    save_checkpoint(checkpoint, final)
+    save_snapshot(out_dir, final)
     plot_learning_curve(metrics_path, out_dir / "learning_curve")
     return TrainResult(
         out_dir,
@@ -434,7 +440,9 @@ def _run(
                     writer.writerow(row)
                     handle.flush()
                     if session.frames >= next_checkpoint:
-                        save_checkpoint(checkpoint, learner.state(session))
+                        state = learner.state(session)
+                        save_checkpoint(checkpoint, state)
+                        save_snapshot(checkpoint.parent, state)
                         next_checkpoint = _next_multiple(
                             session.frames, experiment.checkpoint_interval
                         )

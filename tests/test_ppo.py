@@ -189,6 +189,13 @@ def test_training_is_finite_and_resumes(tmp_path, algorithm: str) -> None:
     assert config.algorithm_name == algorithm
     for name, tensor in actor.state_dict().items():
         assert torch.equal(tensor, state["actor"][name])
+    snapshots = sorted(path.name for path in (tmp_path / "snapshots").iterdir())
+    assert snapshots == ["actor-0000000.pt", "actor-0000032.pt"]  # the start, each checkpoint
+    final, _ = load_actor(tmp_path / "snapshots" / "actor-0000032.pt")
+    start, _ = load_actor(tmp_path / "snapshots" / "actor-0000000.pt")
+    for name, tensor in final.state_dict().items():
+        assert torch.equal(tensor, state["actor"][name])
+    assert any(not torch.equal(start.state_dict()[k], t) for k, t in final.state_dict().items())
 
     resumed = train(tiny(tmp_path, algorithm, 64))
     assert (resumed.resumed_from, resumed.frames, resumed.updates) == (32, 64, 16)
@@ -197,6 +204,7 @@ def test_training_is_finite_and_resumes(tmp_path, algorithm: str) -> None:
     assert float(rows[2]["reward_scale"]) == float(rows[0]["reward_scale"])  # kept on resume
     moved = read_checkpoint(tmp_path / "checkpoint.pt")["actor"]
     assert any(not torch.equal(moved[name], state["actor"][name]) for name in moved)
+    assert (tmp_path / "snapshots" / "actor-0000064.pt").is_file()
 
 
 def test_another_algorithm_does_not_resume_the_run(tmp_path) -> None:
