@@ -45,19 +45,49 @@ def trajectories_command(
     "curves",
     epilog="Examples:\n\n"
     "  popbench plot curves agents/checkpoints/actor-V2-n7.metrics.csv\n\n"
-    "  popbench plot curves runs/a/metrics.csv runs/b/metrics.csv --out results/figures/ab",
+    "  popbench plot curves runs/a/metrics.csv runs/b/metrics.csv --out results/figures/ab\n\n"
+    "  popbench plot curves runs/cmp/* --problems 25 --out results/algorithms/curves "
+    "--reference results/heldout-residual-s0,results/heldout-residual-s1",
 )
 def curves_command(
-    csv: list[Path] = typer.Argument(..., help="Training CSV files (popbench train writes them)."),
+    paths: list[Path] = typer.Argument(
+        ...,
+        help="Training CSV files (one line each), or training run folders (popbench train "
+        "--out; scored on held-out problems and averaged over seeds).",
+    ),
     out: Path = typer.Option(
         Path("results/figures/learning_curves"), help="Output stem: writes STEM.png and STEM.pdf."
     ),
+    problems: int = typer.Option(
+        25,
+        min=1,
+        help="Run folders: the held-out problems each actor snapshot is scored on (the first "
+        "PROBLEMS of popbench run heldout's; cached in RUN/curve.csv).",
+    ),
+    reference: str = typer.Option(
+        "",
+        help="Run folders: popbench run heldout folders (comma-separated, one per seed) whose "
+        "gn-sweep, imitation and local-lm rows join the final table.",
+    ),
 ) -> None:
-    """Learning curves from training CSVs, one line per file."""
-    from popbench.harness.figures import plot_learning_curves
-
-    for path in csv:
+    """Learning curves: of training CSVs (every numeric column against frames, one line per
+    file), or of run folders: each run's actor snapshots scored on held-out problems (median F,
+    mean ATE), one line per algorithm and start with a 95 % band over seeds; run folders also
+    write STEM.csv (every score), STEM.md (the final table) and STEM.marl-eval.json
+    (marl-eval's raw-data layout)."""
+    for path in paths:
         if not path.exists():
-            raise ValueRangeError("CSV file", str(path), "an existing file")
-    paths = plot_learning_curves(csv, out)
-    typer.echo(" ".join(str(p) for p in paths))
+            raise ValueRangeError("curves input", str(path), "an existing CSV file or run folder")
+    folders = [path.is_dir() for path in paths]
+    if any(folders) and not all(folders):
+        raise ValueRangeError("curves inputs", "files and folders", "all CSV files or all folders")
+    if all(folders):
+        from popbench.harness.curves import write_curves
+
+        references = [Path(name) for name in reference.split(",") if name]
+        written = write_curves(paths, out, problems, references)
+    else:
+        from popbench.harness.figures import plot_learning_curves
+
+        written = plot_learning_curves(paths, out)
+    typer.echo(" ".join(str(p) for p in written))

@@ -1,0 +1,322 @@
+"""Held-out learning curves over training runs, aggregated over seeds (issue 29).
+
+A run folder is what ``popbench train`` writes: ``snapshots/actor-FRAMES.pt`` (the actor at the
+start, at every checkpoint and at the end) and, once scored, ``heldout/heldout.csv`` (``popbench
+run heldout --checkpoint RUN/checkpoint.pt --out RUN/heldout``, the final actor). Scoring a run
+(:func:`score_run`) runs each snapshot's ``ga-sac`` row on the first ``problems`` held-out
+problems of the run's own task (noise, robots, poses per robot), through the default consensus,
+and writes one record per (snapshot, problem) into ``RUN/curve.csv``; the final actor's records
+come from ``heldout/heldout.csv`` when it exists (all of its problems: the final table's). A
+folder holding only ``curve.csv`` (what ``results/algorithms/`` commits) is read as it is.
+
+:func:`aggregate` gives, per (algorithm, start, frames), the mean over seeds of each run's median
+F and mean ATE over the first ``problems`` problems, with a 95 % Student-t interval over seeds
+(mean ± t₀.₉₇₅,ₙ₋₁ · s / √n; none for one seed). :func:`marl_eval_json` writes the records in
+marl-eval's raw-data layout (environment → task → algorithm → run → step), negating F and ATE:
+marl-eval takes every metric as higher-is-better.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from popbench.errors import ValueRangeError
+from popbench.harness.heldout import HELDOUT_SEED_BASE, HeldoutConfig, run_heldout
+from popbench.harness.plotting import pyplot, save_figure
+
+CURVE_COLUMNS = ("task", "algorithm", "start", "seed", "frames", "problem_seed", "F", "ATE")
+METRICS = {"F": "median F over problems", "ATE": "mean ATE over problems [m]"}
+STATISTIC = {"F": "median", "ATE": "mean"}
+REFERENCE_ROWS = ("gn-sweep", "imitation", "local-lm")
+
+
+@dataclasses.dataclass(frozen=True)
+class RunIdentity:
+    """What a run compares: its algorithm, its start ("imitation" or "scratch"), its seed and
+    the task its actor is scored on."""
+
+    algorithm: str
+    start: str
+    seed: int
+    noise: str
+    robots: int
+    poses_per_robot: int
+
+    @property
+    def task(self) -> str:
+        """NOISE-nROBOTS, e.g. V2-n7."""
+        return f"{self.noise}-n{self.robots}"
+
+
+def run_identity(snapshot: Path) -> RunIdentity:
+    """The identity recorded in a snapshot's training config."""
+    from agents.checkpoint import read_checkpoint
+    from agents.config import TrainConfig
+
+    config = TrainConfig.from_dict(read_checkpoint(snapshot)["config"])
+    experiment = config.experiment
+    imitated = experiment.init_actor is not None or config.imitation.episodes > 0
+    return RunIdentity(
+        config.algorithm_name,
+        "imitation" if imitated else "scratch",
+        experiment.seed,
+        experiment.noise,
+        experiment.robots,
+        experiment.poses_per_robot,
+    )
+
+
+def snapshots(run: Path) -> dict[int, Path]:
+    """The run's actor snapshots by frames."""
+    return {
+        int(path.stem.removeprefix("actor-")): path
+        for path in sorted((run / "snapshots").glob("actor-*.pt"))
+    }
+
+
+def score_run(run: Path, problems: int, frames: tuple[int, ...] | None = None) -> pd.DataFrame:
+    """The run's curve records (:data:`CURVE_COLUMNS`), scoring the snapshots (``frames``, or
+    all) not yet in ``run/curve.csv`` and appending them there (module docstring)."""
+    curve_path = run / "curve.csv"
+    done = pd.read_csv(curve_path) if curve_path.is_file() else pd.DataFrame(columns=CURVE_COLUMNS)
+    found = snapshots(run)
+    if not found:
+        if done.empty:
+            raise ValueRangeError("run folder", str(run), "a folder with snapshots/ or curve.csv")
+        return done
+    identity = run_identity(next(iter(found.values())))
+    final = max(found)
+    wanted = sorted(found if frames is None else set(frames) & set(found) | {final})
+    records = [done]
+    for point in wanted:
+        if point in set(done["frames"]):
+            continue
+        final_table = run / "heldout" / "heldout.csv"
+        if point == final and final_table.is_file():
+            rows = pd.read_csv(final_table)
+            rows = rows[rows["row"].isin(["ga-sac", "prop-v1"])]
+        else:
+            config = HeldoutConfig(
+                noise=(identity.noise,),
+                robots=(identity.robots,),
+                problems=problems,
+                poses_per_robot=identity.poses_per_robot,
+                rows=("ga-sac",),
+                checkpoint=found[point],
+                out=run / "curve-cells" / f"actor-{point:07d}",
+            )
+            run_heldout(config)
+            rows = pd.read_csv(config.out / "heldout.csv")
+        records.append(
+            pd.DataFrame(
+                {
+                    "task": identity.task,
+                    "algorithm": identity.algorithm,
+                    "start": identity.start,
+                    "seed": identity.seed,
+                    "frames": point,
+                    "problem_seed": rows["problem_seed"].to_numpy(),
+                    "F": rows["F"].to_numpy(),
+                    "ATE": rows["ATE"].to_numpy(),
+                }
+            )
+        )
+        curve = pd.concat(records, ignore_index=True)
+        curve.to_csv(curve_path, index=False, float_format="%.10g")
+    return pd.concat(records, ignore_index=True)
+
+
+def aggregate(records: pd.DataFrame, problems: int) -> pd.DataFrame:
+    """Per (algorithm, start, frames): each metric's seed mean and 95 % t-interval (module
+    docstring) over the runs' statistic on the first ``problems`` problems, and the seeds."""
+    from scipy import stats
+
+    first = records[records["problem_seed"] < HELDOUT_SEED_BASE + problems]
+    per_run = first.groupby(["algorithm", "start", "frames", "seed"]).agg(
+        F=("F", STATISTIC["F"]), ATE=("ATE", STATISTIC["ATE"]), problems=("F", "size")
+    )
+    short = per_run[per_run["problems"] < problems]
+    if not short.empty:
+        algorithm, start, frames, seed = short.index[0]
+        raise ValueRangeError(
+            f"problems scored for {algorithm}/{start} seed {seed} at {frames} frames",
+            int(short["problems"].iloc[0]),
+            f"at least --problems {problems}",
+        )
+    rows = []
+    for (algorithm, start, frames), group in per_run.groupby(level=[0, 1, 2]):
+        row = {"algorithm": algorithm, "start": start, "frames": frames, "seeds": len(group)}
+        for metric in METRICS:
+            values = group[metric].to_numpy()
+            mean = float(values.mean())
+            half = np.nan
+            if values.size > 1:
+                t = stats.t.ppf(0.975, values.size - 1)
+                half = float(t * values.std(ddof=1) / np.sqrt(values.size))
+            row |= {metric: mean, f"{metric}_lo": mean - half, f"{metric}_hi": mean + half}
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def plot_curves(table: pd.DataFrame, out: Path) -> list[Path]:
+    """One panel per metric: each (algorithm, start) against frames, its seed mean with the
+    95 % band; PNG + PDF."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 3.6), squeeze=False)
+    styles = {"imitation": "-", "scratch": "--"}
+    colours = {
+        name: plt.get_cmap("tab10")(i) for i, name in enumerate(sorted(table["algorithm"].unique()))
+    }
+    for ax, (metric, title) in zip(axes[0], METRICS.items(), strict=True):
+        for (algorithm, start), group in table.groupby(["algorithm", "start"]):
+            group = group.sort_values("frames")
+            colour = colours[algorithm]
+            label = f"{algorithm} from {start} ({group['seeds'].min()} seeds)"
+            ax.plot(
+                group["frames"],
+                group[metric],
+                styles.get(start, ":"),
+                color=colour,
+                marker=".",
+                label=label,
+            )
+            ax.fill_between(
+                group["frames"],
+                group[f"{metric}_lo"],
+                group[f"{metric}_hi"],
+                color=colour,
+                alpha=0.15,
+                linewidth=0,
+            )
+        ax.set_xlabel("frames")
+        ax.set_title(f"{title}, mean ± 95 % CI over seeds", fontsize="small")
+    axes[0, 0].legend(fontsize="x-small")
+    fig.tight_layout()
+    return save_figure(fig, out)
+
+
+def marl_eval_json(records: pd.DataFrame, problems: int) -> dict:
+    """The records in marl-eval's raw-data layout: ``{"popbench": {TASK: {ALGORITHM-START:
+    {"run_SEED": {"step_I": {"step_count": frames, "neg_F": [...], "neg_ATE": [...]}, …,
+    "absolute_metrics": {...}}}}}}``, steps over the first ``problems`` problems, the absolute
+    metrics over every problem of the final snapshot."""
+    tasks: dict[str, dict] = {}
+    for (task, algorithm, start, seed), run in records.groupby(
+        ["task", "algorithm", "start", "seed"]
+    ):
+        steps: dict[str, dict] = {}
+        points = sorted(run["frames"].unique())
+        for index, frames in enumerate(points):
+            at = run[run["frames"] == frames]
+            first = at[at["problem_seed"] < HELDOUT_SEED_BASE + problems]
+            steps[f"step_{index}"] = {"step_count": int(frames), **_negated(first)}
+        steps["absolute_metrics"] = _negated(run[run["frames"] == points[-1]])
+        tasks.setdefault(task, {}).setdefault(f"{algorithm}-{start}", {})[f"run_{seed}"] = steps
+    return {"popbench": tasks}
+
+
+def _negated(rows: pd.DataFrame) -> dict[str, list[float]]:
+    ordered = rows.sort_values("problem_seed")
+    return {f"neg_{metric}": (-ordered[metric]).tolist() for metric in METRICS}
+
+
+def final_table(records: pd.DataFrame) -> pd.DataFrame:
+    """Per (algorithm, start): the final snapshot's statistics over all its problems, mean over
+    seeds with the 95 % t-interval (as :func:`aggregate`)."""
+    last = records[
+        records["frames"]
+        == records.groupby(["algorithm", "start", "seed"])["frames"].transform("max")
+    ]
+    problems = int(last.groupby(["algorithm", "start", "seed"]).size().min())
+    table = aggregate(last, problems)
+    return table.drop(columns="frames").assign(problems=problems)
+
+
+def reference_records(folders: list[Path], rows: tuple[str, ...] = REFERENCE_ROWS) -> pd.DataFrame:
+    """The ``rows`` of ``popbench run heldout`` folders as final records (start "—"), one seed
+    per folder (the imitation row is one seed's imitation actor; the classical rows repeat)."""
+    records = []
+    for seed, folder in enumerate(folders):
+        path = folder / "heldout.csv"
+        if not path.is_file():
+            raise ValueRangeError("reference folder", str(folder), "a popbench run heldout folder")
+        frame = pd.read_csv(path)
+        frame = frame[frame["row"].isin(rows)]
+        records.append(
+            pd.DataFrame(
+                {
+                    "task": frame["noise"] + "-n" + frame["robots"].astype(str),
+                    "algorithm": frame["row"],
+                    "start": "—",
+                    "seed": seed,
+                    "frames": 0,
+                    "problem_seed": frame["problem_seed"],
+                    "F": frame["F"],
+                    "ATE": frame["ATE"],
+                }
+            )
+        )
+    return pd.concat(records, ignore_index=True)
+
+
+def write_curves(
+    runs: list[Path], out: Path, problems: int, references: list[Path] | None = None
+) -> list[Path]:
+    """Score ``runs`` and write ``out``.csv (every record), ``out``.md (the final table, with the
+    :data:`REFERENCE_ROWS` of the ``references`` held-out folders, and the curve points),
+    ``out``.marl-eval.json and the figure ``out``.png / .pdf."""
+    records = pd.concat([score_run(run, problems) for run in runs], ignore_index=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    records.to_csv(out.with_suffix(".csv"), index=False, float_format="%.10g")
+    if records["task"].nunique() > 1:
+        raise ValueRangeError("runs' tasks", ",".join(sorted(records["task"].unique())), "one task")
+    table = aggregate(records, problems)
+    json_path = out.with_suffix(".marl-eval.json")
+    json_path.write_text(json.dumps(marl_eval_json(records, problems)))
+    md_path = out.with_suffix(".md")
+    final = final_table(records)
+    if references:
+        final = pd.concat([final, final_table(reference_records(references))], ignore_index=True)
+    md_path.write_text(_markdown(table, final, problems))
+    return [out.with_suffix(".csv"), md_path, json_path, *plot_curves(table, out)]
+
+
+def _markdown(curve: pd.DataFrame, final: pd.DataFrame, problems: int) -> str:
+    def cell(row: pd.Series, metric: str, digits: int) -> str:
+        if np.isnan(row[f"{metric}_lo"]):
+            return f"{row[metric]:.{digits}f}"
+        return (
+            f"{row[metric]:.{digits}f} [{row[f'{metric}_lo']:.{digits}f}, "
+            f"{row[f'{metric}_hi']:.{digits}f}]"
+        )
+
+    lines = [
+        f"Final actors ({int(final['problems'].min())} held-out problems each): each run's "
+        "median F and mean ATE, mean over seeds [95 % t-interval over seeds].",
+        "",
+        "| algorithm | start | seeds | median F | mean ATE [m] |",
+        "|---|---|---:|---:|---:|",
+    ]
+    for _, row in final.iterrows():
+        lines.append(
+            f"| {row.algorithm} | {row.start} | {row.seeds} | {cell(row, 'F', 1)} "
+            f"| {cell(row, 'ATE', 3)} |"
+        )
+    lines += [
+        "",
+        f"Learning curves (the first {problems} held-out problems at every snapshot):",
+        "",
+        "| algorithm | start | frames | seeds | median F | mean ATE [m] |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for _, row in curve.sort_values(["algorithm", "start", "frames"]).iterrows():
+        lines.append(
+            f"| {row.algorithm} | {row.start} | {row.frames} | {row.seeds} "
+            f"| {cell(row, 'F', 1)} | {cell(row, 'ATE', 3)} |"
+        )
+    return "\n".join(lines) + "\n"
