@@ -81,8 +81,12 @@ def test_marl_eval_layout_negates_lower_is_better_metrics() -> None:
 def test_runs_scored_aggregated_and_exported(runs, tmp_path, capsys) -> None:
     from popbench.cli import main
 
-    out = tmp_path / "curves"
-    code = main(["plot", "curves", *map(str, runs), "--problems", "2", "--out", str(out)])
+    out, reference = tmp_path / "curves", tmp_path / "reference"
+    reference.mkdir()
+    classical = records({0: [7.0, 9.0]}).assign(row="gn-sweep", noise="V2", robots=3)
+    classical.to_csv(reference / "heldout.csv", index=False)
+    args = ["--problems", "2", "--out", str(out), "--reference", str(reference)]
+    code = main(["plot", "curves", *map(str, runs), *args])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     assert {Path(path).name for path in captured.out.split()} == {
@@ -99,7 +103,9 @@ def test_runs_scored_aggregated_and_exported(runs, tmp_path, capsys) -> None:
     assert np.isfinite(scored[["F", "ATE"]].to_numpy()).all()
     layout = json.loads(out.with_suffix(".marl-eval.json").read_text())
     assert set(layout["popbench"]["V2-n3"]["mappo-scratch"]) == {"run_0", "run_1"}
-    assert "| mappo | scratch | 32 | 2 |" in out.with_suffix(".md").read_text()
+    table = out.with_suffix(".md").read_text()
+    assert "| mappo | scratch | 32 | 2 |" in table
+    assert "| gn-sweep | — | 1 | 8.0 | 0.080 |" in table  # median F, mean ATE of the reference
 
     # a second call reads RUN/curve.csv instead of scoring again
     cached = [pd.read_csv(run / "curve.csv") for run in runs]

@@ -163,9 +163,12 @@ def aggregate(records: pd.DataFrame, problems: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def plot_curves(table: pd.DataFrame, out: Path) -> list[Path]:
+def plot_curves(
+    table: pd.DataFrame, out: Path, references: pd.DataFrame | None = None
+) -> list[Path]:
     """One panel per metric: each (algorithm, start) against frames, its seed mean with the
-    95 % band; PNG + PDF."""
+    95 % band; each row of ``references`` (:func:`aggregate` of reference records) a grey
+    horizontal line; PNG + PDF."""
     plt = pyplot()
     fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 3.6), squeeze=False)
     styles = {"imitation": "-", "scratch": "--"}
@@ -193,6 +196,8 @@ def plot_curves(table: pd.DataFrame, out: Path) -> list[Path]:
                 alpha=0.15,
                 linewidth=0,
             )
+        for dashes, (_, row) in zip(((1, 1), (4, 2), (1, 3)), _rows(references), strict=False):
+            ax.axhline(row[metric], color="0.4", linewidth=1, dashes=dashes, label=row.algorithm)
         ax.set_xlabel("frames")
         ax.set_title(f"{title}, mean ± 95 % CI over seeds", fontsize="small")
     axes[0, 0].legend(fontsize="x-small")
@@ -280,10 +285,15 @@ def write_curves(
     json_path.write_text(json.dumps(marl_eval_json(records, problems)))
     md_path = out.with_suffix(".md")
     final = final_table(records)
-    if references:
+    if references:  # the reference rows' statistics over all their problems
         final = pd.concat([final, final_table(reference_records(references))], ignore_index=True)
     md_path.write_text(_markdown(table, final, problems))
-    return [out.with_suffix(".csv"), md_path, json_path, *plot_curves(table, out)]
+    lines = aggregate(reference_records(references), problems) if references else None
+    return [out.with_suffix(".csv"), md_path, json_path, *plot_curves(table, out, lines)]
+
+
+def _rows(frame: pd.DataFrame | None):
+    return () if frame is None else frame.iterrows()
 
 
 def _markdown(curve: pd.DataFrame, final: pd.DataFrame, problems: int) -> str:
