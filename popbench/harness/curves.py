@@ -199,6 +199,7 @@ def plot_curves(
         for dashes, (_, row) in zip(((1, 1), (4, 2), (1, 3)), _rows(references), strict=False):
             ax.axhline(row[metric], color="0.4", linewidth=1, dashes=dashes, label=row.algorithm)
         ax.set_xlabel("frames")
+        ax.set_yscale("log" if metric == "F" else "linear")  # F spans orders where a run diverges
         ax.set_title(f"{title}, mean ± 95 % CI over seeds", fontsize="small")
     axes[0, 0].legend(fontsize="x-small")
     fig.tight_layout()
