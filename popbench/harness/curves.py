@@ -166,42 +166,51 @@ def aggregate(records: pd.DataFrame, problems: int) -> pd.DataFrame:
 def plot_curves(
     table: pd.DataFrame, out: Path, references: pd.DataFrame | None = None
 ) -> list[Path]:
-    """One panel per metric: each (algorithm, start) against frames, its seed mean with the
-    95 % band; each row of ``references`` (:func:`aggregate` of reference records) a grey
-    horizontal line; PNG + PDF."""
+    """One row of panels per start, one panel per metric: each algorithm against frames, its
+    seed mean with the 95 % band (clipped to the axes, which fit the means and the reference
+    lines: the full intervals are in the table); each row of ``references`` (:func:`aggregate`
+    of reference records) a grey horizontal line; F on a log axis where a diverging run's F
+    is more than 3 times the others'. PNG + PDF."""
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(METRICS), figsize=(5 * len(METRICS), 3.6), squeeze=False)
-    styles = {"imitation": "-", "scratch": "--"}
-    colours = {
-        name: plt.get_cmap("tab10")(i) for i, name in enumerate(sorted(table["algorithm"].unique()))
-    }
-    for ax, (metric, title) in zip(axes[0], METRICS.items(), strict=True):
-        for (algorithm, start), group in table.groupby(["algorithm", "start"]):
-            group = group.sort_values("frames")
-            colour = colours[algorithm]
-            label = f"{algorithm} from {start} ({group['seeds'].min()} seeds)"
-            ax.plot(
-                group["frames"],
-                group[metric],
-                styles.get(start, ":"),
-                color=colour,
-                marker=".",
-                label=label,
-            )
-            ax.fill_between(
-                group["frames"],
-                group[f"{metric}_lo"],
-                group[f"{metric}_hi"],
-                color=colour,
-                alpha=0.15,
-                linewidth=0,
-            )
-        for dashes, (_, row) in zip(((1, 1), (4, 2), (1, 3)), _rows(references), strict=False):
-            ax.axhline(row[metric], color="0.4", linewidth=1, dashes=dashes, label=row.algorithm)
-        ax.set_xlabel("frames")
-        ax.set_yscale("log" if metric == "F" else "linear")  # F spans orders where a run diverges
-        ax.set_title(f"{title}, mean ± 95 % CI over seeds", fontsize="small")
-    axes[0, 0].legend(fontsize="x-small")
+    starts = sorted(table["start"].unique())
+    fig, axes = plt.subplots(
+        len(starts), len(METRICS), figsize=(5 * len(METRICS), 3.4 * len(starts)), squeeze=False
+    )
+    algorithms = sorted(table["algorithm"].unique())
+    colours = {name: plt.get_cmap("tab10")(i) for i, name in enumerate(algorithms)}
+    for panels, start in zip(axes, starts, strict=True):
+        for ax, (metric, title) in zip(panels, METRICS.items(), strict=True):
+            shown = []
+            for algorithm, group in table[table["start"] == start].groupby("algorithm"):
+                group = group.sort_values("frames")
+                colour = colours[algorithm]
+                label = f"{algorithm} ({group['seeds'].min()} seeds)"
+                ax.plot(group["frames"], group[metric], "-", color=colour, marker=".", label=label)
+                ax.fill_between(
+                    group["frames"],
+                    group[f"{metric}_lo"],
+                    group[f"{metric}_hi"],
+                    color=colour,
+                    alpha=0.15,
+                    linewidth=0,
+                )
+                shown += list(group[metric])
+            for dashes, (_, row) in zip(((1, 1), (4, 2), (1, 3)), _rows(references), strict=False):
+                ax.axhline(
+                    row[metric], color="0.4", linewidth=1, dashes=dashes, label=row.algorithm
+                )
+                shown.append(row[metric])
+            low, high = min(shown), max(shown)
+            if metric == "F" and high > 3 * low:
+                ax.set_yscale("log")
+                ax.set_ylim(low / 1.3, high * 1.3)
+            else:
+                pad = 0.08 * (high - low) + 0.01 * abs(high)
+                ax.set_ylim(low - pad, high + pad)
+            ax.set_xlabel("frames")
+            ax.set_title(f"from {start}: {title}", fontsize="small")
+        panels[0].legend(fontsize="x-small")
+    fig.suptitle("Held-out learning curves, mean over seeds ± 95 % t-interval", fontsize="small")
     fig.tight_layout()
     return save_figure(fig, out)
 
