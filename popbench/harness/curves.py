@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from popbench.errors import ValueRangeError
-from popbench.harness.heldout import HELDOUT_SEED_BASE, HeldoutConfig, run_heldout
+from popbench.harness.heldout import HELDOUT_SEED_BASE, ROW_ALIASES, HeldoutConfig, run_heldout
 from popbench.harness.plotting import pyplot, save_figure
 
 CURVE_COLUMNS = ("task", "algorithm", "start", "seed", "frames", "problem_seed", "F", "ATE")
@@ -79,9 +79,9 @@ def snapshots(run: Path) -> dict[int, Path]:
     }
 
 
-def score_run(run: Path, problems: int, frames: tuple[int, ...] | None = None) -> pd.DataFrame:
-    """The run's curve records (:data:`CURVE_COLUMNS`), scoring the snapshots (``frames``, or
-    all) not yet in ``run/curve.csv`` and appending them there (module docstring)."""
+def score_run(run: Path, problems: int) -> pd.DataFrame:
+    """The run's curve records (:data:`CURVE_COLUMNS`), scoring the snapshots not yet in
+    ``run/curve.csv`` and appending them there (module docstring)."""
     curve_path = run / "curve.csv"
     done = pd.read_csv(curve_path) if curve_path.is_file() else pd.DataFrame(columns=CURVE_COLUMNS)
     found = snapshots(run)
@@ -91,15 +91,12 @@ def score_run(run: Path, problems: int, frames: tuple[int, ...] | None = None) -
         return done
     identity = run_identity(next(iter(found.values())))
     final = max(found)
-    wanted = sorted(found if frames is None else set(frames) & set(found) | {final})
+    heldout_csv = run / "heldout" / "heldout.csv"
     records = [done]
-    for point in wanted:
-        if point in set(done["frames"]):
-            continue
-        final_table = run / "heldout" / "heldout.csv"
-        if point == final and final_table.is_file():
-            rows = pd.read_csv(final_table)
-            rows = rows[rows["row"].isin(["ga-sac", "prop-v1"])]
+    for point in sorted(set(found) - set(done["frames"])):
+        if point == final and heldout_csv.is_file():
+            rows = pd.read_csv(heldout_csv)
+            rows = rows[rows["row"].map(lambda row: ROW_ALIASES.get(row, row)) == "ga-sac"]
         else:
             config = HeldoutConfig(
                 noise=(identity.noise,),
