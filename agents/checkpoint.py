@@ -101,6 +101,29 @@ def save_snapshot(out_dir: str | Path, state: dict[str, Any]) -> Path:
     return save_checkpoint(path, {key: state[key] for key in ACTOR_KEYS})
 
 
+def run_snapshots(out_dir: str | Path) -> dict[int, Path]:
+    """A training run's actor snapshots (:func:`save_snapshot`) by frames, in frame order."""
+    found = Path(out_dir).glob("snapshots/actor-*.pt")
+    return dict(sorted((int(path.stem.removeprefix("actor-")), path) for path in found))
+
+
+def snapshot_identity(path: str | Path) -> dict[str, Any]:
+    """What a snapshot's training config says the run compares: "algorithm", "start"
+    ("imitation" with --init-actor or an imitation phase, else "scratch"), "seed", and the task
+    its actor is scored on: "noise", "robots", "poses_per_robot"."""
+    config = TrainConfig.from_dict(read_checkpoint(path)["config"])
+    experiment = config.experiment
+    imitated = experiment.init_actor is not None or config.imitation.episodes > 0
+    return {
+        "algorithm": config.algorithm_name,
+        "start": "imitation" if imitated else "scratch",
+        "seed": experiment.seed,
+        "noise": experiment.noise,
+        "robots": experiment.robots,
+        "poses_per_robot": experiment.poses_per_robot,
+    }
+
+
 def add_outlier_gate(
     path: str | Path,
     out: str | Path,

@@ -28,17 +28,22 @@ import pandas as pd
 from popbench.errors import ValueRangeError
 from popbench.harness.heldout import HELDOUT_SEED_BASE, ROW_ALIASES, HeldoutConfig, run_heldout
 from popbench.harness.plotting import pyplot, save_figure
+from popbench.methods import load_object
 
 CURVE_COLUMNS = ("task", "algorithm", "start", "seed", "frames", "problem_seed", "F", "ATE")
 METRICS = {"F": "median F over problems", "ATE": "mean ATE over problems [m]"}
 STATISTIC = {"F": "median", "ATE": "mean"}
 REFERENCE_ROWS = ("gn-sweep", "imitation", "local-lm")
+# The run's snapshots and what they compare, from the agents package (loaded by name: the core
+# never imports agents).
+SNAPSHOTS_FUNCTION = "agents.checkpoint:run_snapshots"
+IDENTITY_FUNCTION = "agents.checkpoint:snapshot_identity"
 
 
 @dataclasses.dataclass(frozen=True)
 class RunIdentity:
-    """What a run compares: its algorithm, its start ("imitation" or "scratch"), its seed and
-    the task its actor is scored on."""
+    """What a run compares (agents.checkpoint.snapshot_identity): its algorithm, its start
+    ("imitation" or "scratch"), its seed and the task its actor is scored on."""
 
     algorithm: str
     start: str
@@ -53,43 +58,17 @@ class RunIdentity:
         return f"{self.noise}-n{self.robots}"
 
 
-def run_identity(snapshot: Path) -> RunIdentity:
-    """The identity recorded in a snapshot's training config."""
-    from agents.checkpoint import read_checkpoint
-    from agents.config import TrainConfig
-
-    config = TrainConfig.from_dict(read_checkpoint(snapshot)["config"])
-    experiment = config.experiment
-    imitated = experiment.init_actor is not None or config.imitation.episodes > 0
-    return RunIdentity(
-        config.algorithm_name,
-        "imitation" if imitated else "scratch",
-        experiment.seed,
-        experiment.noise,
-        experiment.robots,
-        experiment.poses_per_robot,
-    )
-
-
-def snapshots(run: Path) -> dict[int, Path]:
-    """The run's actor snapshots by frames."""
-    return {
-        int(path.stem.removeprefix("actor-")): path
-        for path in sorted((run / "snapshots").glob("actor-*.pt"))
-    }
-
-
 def score_run(run: Path, problems: int) -> pd.DataFrame:
     """The run's curve records (:data:`CURVE_COLUMNS`), scoring the snapshots not yet in
     ``run/curve.csv`` and appending them there (module docstring)."""
     curve_path = run / "curve.csv"
     done = pd.read_csv(curve_path) if curve_path.is_file() else pd.DataFrame(columns=CURVE_COLUMNS)
-    found = snapshots(run)
+    found = load_object(SNAPSHOTS_FUNCTION)(run)
     if not found:
         if done.empty:
             raise ValueRangeError("run folder", str(run), "a folder with snapshots/ or curve.csv")
         return done
-    identity = run_identity(next(iter(found.values())))
+    identity = RunIdentity(**load_object(IDENTITY_FUNCTION)(next(iter(found.values()))))
     final = max(found)
     heldout_csv = run / "heldout" / "heldout.csv"
     records = [done]
@@ -283,19 +262,19 @@ def write_curves(
     :data:`REFERENCE_ROWS` of the ``references`` held-out folders, and the curve points),
     ``out``.marl-eval.json and the figure ``out``.png / .pdf."""
     records = pd.concat([score_run(run, problems) for run in runs], ignore_index=True)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    records.to_csv(out.with_suffix(".csv"), index=False, float_format="%.10g")
     if records["task"].nunique() > 1:
         raise ValueRangeError("runs' tasks", ",".join(sorted(records["task"].unique())), "one task")
-    table = aggregate(records, problems)
+    table, final, lines = aggregate(records, problems), final_table(records), None
+    if references:
+        known = reference_records(references)
+        final = pd.concat([final, final_table(known)], ignore_index=True)  # all their problems
+        lines = aggregate(known, problems)  # the curves' problems
+    out.parent.mkdir(parents=True, exist_ok=True)
+    records.to_csv(out.with_suffix(".csv"), index=False, float_format="%.10g")
     json_path = out.with_suffix(".marl-eval.json")
     json_path.write_text(json.dumps(marl_eval_json(records, problems)))
     md_path = out.with_suffix(".md")
-    final = final_table(records)
-    if references:  # the reference rows' statistics over all their problems
-        final = pd.concat([final, final_table(reference_records(references))], ignore_index=True)
     md_path.write_text(_markdown(table, final, problems))
-    lines = aggregate(reference_records(references), problems) if references else None
     return [out.with_suffix(".csv"), md_path, json_path, *plot_curves(table, out, lines)]
 
 
