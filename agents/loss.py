@@ -16,21 +16,10 @@ Per agent i (rewards are per agent; the critic gives one Q_i per agent, MAAC-sty
   α_e:     L = E[log α_e · (H[π(· | s)] − H̄_e(s))],   H̄_e(s) = ratio · log |allowed edges|
   α_δ:     L = −E[log α_δ · (log π(δ | s, e) + H̄_δ)],  H̄_δ = −3
 
-Reward scale c (`AlgorithmConfig.reward_scale`; SAC's reward scale, Haarnoja et al. 2018 §5):
-the environment's per-step reward is a *fraction* of the remaining error (paper eq. reward), and
-one step moves one pose of a ~60-pose graph, so |r| ≈ 0.003–0.01 per step while the entropy
-bonus α_e·H ≈ 0.1 · 4 nats ≈ 0.4 per step: without scaling, the soft Q target is >95 % entropy and
-the critic cannot resolve what a correction is worth. Scaling the reward (equivalently, dividing
-both temperatures by c) makes the reward part of Q O(1). The environment's reward stays the
-paper's; c acts only inside this loss.
-
-Huber critic loss (`AlgorithmConfig.huber_delta`; the paper does not state its critic loss):
-the reward normalises each step's change by the agent's remaining error L_{t−1}, which the
-critic cannot observe and which varies ~400× between agents (a 60-pose local graph without a
-loop closure has L ≈ 200–800, one with accumulated drift 10⁴–10⁵). The same move therefore gives a
-tanh-clipped reward near −1 on a low-L agent and ~10⁻⁴ on a high-L one: 1 % of the scaled step
-rewards of a random policy are below −11 and 0.1 % below −73, and these carry most of the
-squared TD error, so an MSE critic spends its updates on them. Huber bounds their gradient.
+Reward scale c (`AlgorithmConfig.reward_scale`; SAC's, Haarnoja et al. 2018 §5) acts only inside
+this loss: it makes the reward part of the soft Q target O(1) beside the entropy bonus. The
+Huber critic loss (`AlgorithmConfig.huber_delta`) bounds the gradient of the rare large TD errors.
+Both are departures from the paper; their reasons and measurements: docs/training.md.
 
 Supervised terms (beyond the paper; agents.loss_terms, docs/training.md), each with its own key
 and only when its weight is > 0, so that the paper's GA-SAC is unchanged by default:
