@@ -37,6 +37,8 @@ every step (tests/test_prop_methods.py checks this to float32 round-off).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor
 
@@ -46,7 +48,6 @@ from agents.encoder import (
     LOG_INFO_COLUMNS,
     GraphBatch,
     base_inputs,
-    chosen_base,
     edge_embeddings,
 )
 
@@ -97,10 +98,6 @@ class IncrementalPolicy:
         slots = incident[:, :v]
         self.incident = torch.where(slots < e, slots + offsets.view(-1, 1, 1) * e, n_edges)
         self.incident = self.incident.reshape(n_nodes, -1)
-        # Static per incidence: does the edge's forward (reverse) message arrive at the vertex?
-        vertex = torch.arange(n_nodes).unsqueeze(-1)
-        self.at_tail = (self.tails[self.incident] == vertex).unsqueeze(-1)
-        self.at_head = (self.heads[self.incident] == vertex).unsqueeze(-1)
         degree = torch.zeros(n_nodes + 1).index_add(0, self.tails[:-1], self.valid[:-1])
         degree = degree.index_add(0, self.heads[:-1], self.valid[:-1])
         self.degree = degree[:n_nodes].clamp(min=1.0)
@@ -190,12 +187,20 @@ class IncrementalPolicy:
         self._refresh_readout(vertices)
 
     def _node_update(self, layer: int, conv, vertices: Tensor) -> Tensor:
-        """h^(ℓ+1) of `vertices` from cached gated messages (eqs. mean_aggr, node_update)."""
-        slots = self.incident[vertices]  # [S, D]
-        z = self.gates[layer][slots].unsqueeze(-1)
+        """h^(ℓ+1) of `vertices` (ascending flat ids) from cached gated messages (eqs. mean_aggr,
+        node_update): each incident edge's gated message is added at its endpoint's row, over
+        the real incident edges only (O(their count), not O(|vertices| · max degree))."""
+        edges = self._edges_at(vertices)
+        z = self.gates[layer][edges].unsqueeze(-1)
         forward, reverse = self.messages[layer]
-        arriving = self.at_tail[vertices] * forward[slots] + self.at_head[vertices] * reverse[slots]
-        mean = (z * arriving).sum(1) / self.degree[vertices].unsqueeze(-1)
+        count = vertices.numel()
+        summed = torch.zeros(count + 1, forward.shape[1])
+        for ends, messages in ((self.tails, forward), (self.heads, reverse)):
+            end = ends[edges]
+            row = torch.searchsorted(vertices, end).clamp(max=count - 1)
+            row = torch.where(vertices[row] == end, row, count)  # an end outside: the spare row
+            summed.index_add_(0, row, z * messages[edges])
+        mean = summed[:count] / self.degree[vertices].unsqueeze(-1)
         h = self.h[layer][vertices]
         return conv.activation(conv.update_net(torch.cat([h, mean], -1)))
 
@@ -229,15 +234,18 @@ class IncrementalPolicy:
 
     @torch.no_grad()
     def act(
-        self, action_mask: Tensor, base: tuple[Tensor, Tensor] | None = None
+        self,
+        action_mask: Tensor,
+        base: Callable[[Tensor], tuple[Tensor, Tensor]] | None = None,
     ) -> tuple[Tensor, Tensor]:
         """One deterministic decision for every graph: (edge [G] long, delta [G, 3]).
 
         Args:
             action_mask: [G, E + 1] bool, the env's action mask; it must agree with the edges
                 this policy chose so far (the environment processes exactly the chosen edge).
-            base: (base_step [G, E, 3], base_model [G, E, 9]) of the current state, for an
-                actor with base features (envs.readout.base_observation).
+            base: for an actor with base features, the chosen edges' [G] (base_step [G, 3],
+                base_model [G, 9]) at the current state (envs.readout.chosen_base_observation:
+                the rows of envs.readout.base_observation, computed for the chosen edge only).
         """
         if not torch.equal(action_mask[:, : self.shape[2]].sum(1), self.remaining):
             raise RuntimeError("action mask out of step with the edges this policy chose")
@@ -254,8 +262,7 @@ class IncrementalPolicy:
         edge = self._choose(context_term, last, action_mask)
         chosen = torch.cat([self.embeddings[rows, edge], context], -1)
         if actor.config.base_features:
-            weights = torch.nn.functional.one_hot(edge, self.shape[2] + 1).to(chosen.dtype)
-            step, model = chosen_base(*base, weights)
+            step, model = base(edge)
             chosen = torch.cat([chosen, base_inputs(step, model, actor.delta_max)], -1)
         mean, _ = actor.correction_head(chosen).chunk(2, dim=-1)
         delta = actor.delta_max * torch.tanh(mean)

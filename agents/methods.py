@@ -165,7 +165,7 @@ def run_episode(
     `base="gauss-newton"` task: the base step alone; the actor's memory still reads its own Δ)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
-    from envs.readout import base_observation
+    from envs.readout import chosen_base_observation
 
     start = time.perf_counter()
     n = problem.num_robots
@@ -198,11 +198,14 @@ def run_episode(
     step_s = []
     horizon = int(t["num_edges"].max())
     horizon = horizon if max_steps is None else min(horizon, max_steps)
+    base = None
+    if actor.config.base_features:
+
+        def base(edge: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            return chosen_base_observation(core, edge.view(1, n))
+
     for _ in range(horizon):
         tick = time.perf_counter()
-        base = None
-        if actor.config.base_features:
-            base = tuple(value[0] for value in base_observation(core).values())
         edge, delta = policy.act(core.action_mask()[0], base)
         delta = delta if correction else torch.zeros_like(delta)
         core.step(edge.view(1, n), delta.view(1, n, 3))

@@ -2,23 +2,24 @@
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_prop.py
     (options: --sizes 60,250,1000,2500,10000 (--sizes '' skips part 1) --steps 100
-     --full-steps 5 --skip-city --checkpoint PATH --threads 1)
+     --full-steps 5 --table-robots 1 --skip-city --checkpoint PATH --threads 1)
 
-Part 1 — per-step time against the local graph size. One robot, synthetic V2 local graphs of
-P poses (P from 60 to 10,000; ≈ 1.15·P edges). For each P: the median wall time of one prop-v1
-step (incremental actor pass + environment step + cache refresh, agents.methods.run_episode,
-first `--steps` steps: the slowest of an episode, since the edge head scores every unprocessed
-edge) and, measured in the same run, the median time of one *full* actor pass
-over the same graph (what a non-incremental implementation pays per step). Printed with the
-ratio full / incremental.
+Part 1 — per-step time against the local graph size. `--table-robots` robots (default one),
+synthetic V2 graphs of P poses per robot (P from 60 to 10,000; ≈ 1.15·P edges). For each P: the
+median wall time of one prop-v1 step (incremental actor pass + environment step + cache refresh,
+agents.methods.run_episode in the checkpoint's task, first `--steps` steps: the slowest of an
+episode, since the edge head scores every unprocessed edge) and, measured in the same run, the
+median time of one *full* actor pass over the same graph (what a non-incremental implementation
+pays per step). Printed with the ratio full / incremental.
 
 Part 2 — city10k at n = 7 from the odometry start: prop-v1 (whole episode + ADMM consensus) and
 mm-pgo's 1000 iterations (baselines.mm_pgo.solve, from the same odometry start), with
 F, wall and simulated parallel time, the wall-time ratio mm-pgo / prop-v1 and prop-v1's split of
 its wall time: the actor episode (the actor's decisions, IncrementalPolicy.act; the environment
-step, PGOCore.step, of which the Gauss–Newton base step, envs.basestep.base_model; the
-incremental observation, PGOCore.observation_update + IncrementalPolicy.observe_update) and the
-consensus (of which SuperLU's factorisations, splu in popbench.consensus_system), measured by
+step, PGOCore.step, of which the Gauss–Newton base step of the chosen edges,
+envs.basestep.chosen_model; the incremental observation, PGOCore.observation_update +
+IncrementalPolicy.observe_update) and the consensus (of which SuperLU's factorisations, splu in
+popbench.consensus_system), measured by
 wrapping those functions with timers for the run.
 
 The actor is prop-v1's default checkpoint (its record in popbench/methods.py); without it, a
@@ -41,33 +42,37 @@ import torch
 
 from agents.actor import HybridActor
 from agents.checkpoint import load_actor, save_checkpoint
-from agents.config import CPU_SMALL
+from agents.config import CPU_SMALL, TaskConfig
 from agents.encoder import GraphBatch
 from agents.methods import DEFAULT_CHECKPOINT, run_episode, solve_prop_v1
 from popbench.methods import Budget
 from popbench.synthetic import make_problem
 
 
-def actor_for(path: Path) -> tuple[HybridActor, Path]:
-    """The checkpoint's actor, or a random cpu-small one saved to a temporary checkpoint."""
+def actor_for(path: Path) -> tuple[HybridActor, TaskConfig, Path]:
+    """The checkpoint's actor and task, or a random cpu-small one (its preset's task) saved to a
+    temporary checkpoint."""
     if path.is_file():
-        return load_actor(path)[0], path
+        actor, config = load_actor(path)
+        return actor, config.task, path
     torch.manual_seed(0)
     actor = HybridActor(6, 11, CPU_SMALL.model).eval()
     path = Path(tempfile.mkdtemp()) / "random-cpu-small.pt"
     state = {"config": CPU_SMALL.to_dict(), "dims": {"node": 6, "edge": 11}}
     save_checkpoint(path, {**state, "actor": actor.state_dict()})
-    return actor, path
+    return actor, CPU_SMALL.task, path
 
 
 @torch.no_grad()
-def full_pass_seconds(actor: HybridActor, problem, repeats: int) -> float:
-    """Median time of one full (non-incremental) deterministic actor pass on `problem`."""
+def full_pass_seconds(actor: HybridActor, task: TaskConfig, problem, repeats: int) -> float:
+    """Median time of one full (non-incremental) deterministic actor pass on `problem`, in the
+    environment of the actor's `task` (as agents.methods.run_episode builds it)."""
     from envs.core import PGOCore
     from envs.observation import Dimensions
 
     n = problem.num_robots
-    core = PGOCore(n, Dimensions.of([problem]), 1, delta_max=actor.delta_max.tolist(), reward="F")
+    metric = {"delta_max": actor.delta_max.tolist()} if task.action_scale == "metric" else {}
+    core = PGOCore(n, Dimensions.of([problem]), 1, reward="F", **metric, **task.core_options())
     core.load([problem], [0])
     obs = core.observation()
     graphs = GraphBatch(
@@ -85,14 +90,16 @@ def full_pass_seconds(actor: HybridActor, problem, repeats: int) -> float:
     return float(np.median(times))
 
 
-def per_step_table(actor: HybridActor, sizes: list[int], steps: int, full_steps: int) -> None:
-    print("\nper-step time, one robot, synthetic V2 local graph of P poses")
+def per_step_table(
+    actor: HybridActor, task: TaskConfig, sizes: list[int], steps: int, full_steps: int, robots: int
+) -> None:
+    print(f"\nper-step time, {robots} robot(s), synthetic V2 graph of P poses per robot")
     print(f"{'P':>7} {'edges':>7} {'incremental ms':>15} {'full pass ms':>13} {'full/incr':>10}")
     for poses in sizes:
-        problem = make_problem(robots=1, noise="V2", poses_per_robot=poses, seed=0)
-        episode = run_episode(actor, problem, max_steps=steps)
+        problem = make_problem(robots=robots, noise="V2", poses_per_robot=poses, seed=0)
+        episode = run_episode(actor, problem, max_steps=steps, task=task)
         incremental = float(np.median(episode.step_s))
-        full = full_pass_seconds(actor, problem, full_steps)
+        full = full_pass_seconds(actor, task, problem, full_steps)
         print(
             f"{poses:>7} {problem.graph.num_edges:>7} {1e3 * incremental:>15.2f} "
             f"{1e3 * full:>13.2f} {full / incremental:>10.1f}"
@@ -104,7 +111,7 @@ PHASES = (
     ("actor: observation update", "agents.inference", "IncrementalPolicy.observe_update"),
     ("actor: observation update", "envs.core", "PGOCore.observation_update"),
     ("env step (PGOCore.step)", "envs.core", "PGOCore.step"),
-    ("  of which Gauss–Newton base", "envs.basestep", "base_model"),
+    ("  of which Gauss–Newton base", "envs.core", "chosen_model"),
     ("consensus: SuperLU splu", "popbench.consensus_system", "splu"),
 )
 
@@ -179,16 +186,17 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--full-steps", type=int, default=5)
     parser.add_argument("--robots", type=int, default=7)
+    parser.add_argument("--table-robots", type=int, default=1, help="robots of part 1's graphs")
     parser.add_argument("--skip-city", action="store_true")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    actor, checkpoint = actor_for(args.checkpoint)
+    actor, task, checkpoint = actor_for(args.checkpoint)
     print(f"actor: {checkpoint}; torch threads: {args.threads}")
     sizes = [int(size) for size in args.sizes.split(",") if size]
     if sizes:
-        per_step_table(actor, sizes, args.steps, args.full_steps)
+        per_step_table(actor, task, sizes, args.steps, args.full_steps, args.table_robots)
     if not args.skip_city:
         city_comparison(args.robots, checkpoint)
 

@@ -1,4 +1,5 @@
-"""The Gauss–Newton base step of every candidate edge at once, from subtree sums (issue 26).
+"""The Gauss–Newton base step of every candidate edge at once, from subtree sums (issue 26), and
+of one chosen edge from its boundary (issue 27).
 
 A correction Δ on edge ``c = (p → q)`` of an agent's spanning tree moves the subtree ``S_c`` of
 its mover rigidly (:meth:`envs.core.PGOCore.subtree_move`). With the whitened errors
@@ -20,11 +21,14 @@ So, with ``u_m = K_mᵀ W_m² r_m`` and ``h_m = K_mᵀ W_m² K_m`` (candidate-fr
 with ``φ_v = Σ_{head m = v} u_m − Σ_{tail m = v} u_m``, ``χ_v = Σ_{m ∋ v} h_m`` and
 ``ψ_v = Σ_{lca(m) = v} h_m`` (an edge lies inside ``S_c`` iff its endpoints' lowest common
 ancestor does). Subtrees are contiguous pre-order ranges, so every subtree sum is a difference
-of two prefix sums: all candidates cost O(V + E) per step, one evaluation of every edge. Finally
+of two prefix sums: all candidates cost O(V + E) per step, one evaluation of every edge
+(:func:`base_model`, for the training observation, which shows every candidate's model). The
+step the environment executes needs the chosen edge's model alone: :func:`chosen_model` takes the
+same sums directly over the edges that cross ``S_c``'s boundary, O(boundary). Finally
 ``g_c = s_c P_cᵀ g_ξ``, ``H_c = P_cᵀ H_ξ P_c``; positions are taken relative to the agent's vertex
-0 to keep the products well conditioned. The candidate edge itself crosses ``S_c`` and
-contributes ``W_c²`` (``K_c P_c = I``). In the pose mode ``S_c = {q}``: the vertex sums
-themselves, without ``ψ``.
+0 (the chosen edge's head in :func:`chosen_model`) to keep the products well conditioned. The
+candidate edge itself crosses ``S_c`` and contributes ``W_c²`` (``K_c P_c = I``). In the pose
+mode ``S_c = {q}``: the vertex sums themselves, without ``ψ``.
 
 In whitened action units (``Δ_metric = A Δ_w``, ``A = Λ^−½``) the model is ``g_w = Aᵀ g``,
 ``H_w = Aᵀ H A``.
@@ -140,13 +144,8 @@ def _subtree_sums(values: torch.Tensor, position: torch.Tensor, end: torch.Tenso
 
 def base_model(core: PGOCore) -> BaseModel:
     """The quadratic model and Gauss–Newton step of every edge slot of every agent (module
-    docstring), from the core's current poses and residuals.
-
-    Written out for the blocks: with ``R_a`` orthonormal, ``h_m = Kᵀ W² K`` is
-    ``[[τ I, τ S t_b], [·, τ ‖t_b‖² + κ]]`` (four numbers) and ``u_m = [τ R_a r_t,
-    (S t_b)·(τ R_a r_t) + κ r_θ]``; so H_ξ is ``[[α I, β], [βᵀ, γ]]`` and, with
-    ``m = −S t_q``, ``H_c = [[α I, R_pᵀ(α m + β)], [·, α ‖m‖² + 2 β·m + γ]]``,
-    ``g_c = s_c [R_pᵀ g_t, m·g_t + g_θ]``, solved by its Schur complement."""
+    docstring), from the core's current poses and residuals, by subtree sums (the training
+    observation shows every candidate's model)."""
     t = core.tensors
     g = core.batch * core.num_agents
     slots = core.dims.vertices + 1
@@ -154,16 +153,10 @@ def base_model(core: PGOCore) -> BaseModel:
     tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
     tau, kappa = t["tau"].view(g, -1), t["kappa"].view(g, -1)
     r = t["residuals"].view(g, -1, 3)
-    local_f = (tau * _dot(r, r) + kappa * r[..., 2] ** 2).sum(-1)
     origin = poses[:, :1, :2]
     x_tail, x_head = _gather_rows(poses, tails), _gather_rows(poses, heads)
     head_xy = x_head[..., :2] - origin
-    lever = torch.stack([-head_xy[..., 1], head_xy[..., 0]], -1)  # S t_b
-    pull = tau.unsqueeze(-1) * _rotate(x_tail[..., 2], r[..., :2])  # τ R_a r_t
-    u = torch.cat([pull, (_dot(lever, pull) + kappa * r[..., 2]).unsqueeze(-1)], -1)
-    h = torch.stack(
-        [tau, tau * lever[..., 0], tau * lever[..., 1], tau * _dot(head_xy, head_xy) + kappa], -1
-    )
+    u, h = _edge_terms(x_tail[..., 2], head_xy, r, tau, kappa)
 
     def scatter(index: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
         k = values.shape[-1]
@@ -182,10 +175,107 @@ def base_model(core: PGOCore) -> BaseModel:
         mover = heads
         on_tree = torch.arange(tails.shape[1], device=core.device) < core.dims.edges
     sums = _gather_rows(per_vertex, mover)  # (G, E+1, 7): g_ξ (3), α, β (2), γ
-    alpha, beta, gamma = sums[..., 3], sums[..., 4:6], sums[..., 6]
     sign = torch.where(mover == heads, 1.0, -1.0).to(poses.dtype)
-    theta_p = x_tail[..., 2]
-    m = -lever  # −S t_q (the candidate's head is its own row's head)
+    lever = torch.stack([-head_xy[..., 1], head_xy[..., 0]], -1)
+    parts = [t[f"{key}_parts"].view(3, 3, g, -1) for key in WHITENING]
+    gradient, hessian, step = _solve(core, sums, x_tail[..., 2], sign, -lever, parts)
+    keep = on_tree.to(poses.dtype).unsqueeze(-1)
+    return BaseModel(gradient * keep, hessian * keep, step * keep, _local_f(r, tau, kappa))
+
+
+def chosen_model(core: PGOCore, edge: torch.Tensor, inside: torch.Tensor) -> BaseModel:
+    """The model and Gauss–Newton step of one edge slot per agent, ``edge (G, 1)``, whose
+    correction moves the vertices ``inside (G, V+1)`` (:meth:`envs.core.PGOCore.subtree_members`):
+    the sums of the module docstring taken directly over the edges that cross the subtree's
+    boundary, with positions relative to the chosen edge's head (so ``m = 0``). Work: three
+    comparisons per edge slot to find the crossing edges, then O(crossing edges). Fields as
+    :class:`BaseModel` with the edge axis of length 1."""
+    t = core.tensors
+    g = edge.shape[0]
+    poses = t["poses"].view(g, -1, 3)
+    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    tau, kappa = t["tau"].view(g, -1), t["kappa"].view(g, -1)
+    r = t["residuals"].view(g, -1, 3)
+    head_in = torch.gather(inside, 1, heads)
+    crossing = (torch.gather(inside, 1, tails) != head_in).flatten().nonzero().squeeze(-1)
+    agent = crossing // tails.shape[1]
+    tail, head = tails.flatten()[crossing], heads.flatten()[crossing]
+    flat_poses = poses.reshape(-1, 3)
+    offset = agent * poses.shape[1]
+    x_tail, x_head = flat_poses[offset + tail], flat_poses[offset + head]
+    p, q = torch.gather(tails, 1, edge), torch.gather(heads, 1, edge)
+    x_p, x_q = _gather_rows(poses, p).squeeze(1), _gather_rows(poses, q).squeeze(1)
+    head_xy = x_head[:, :2] - x_q[agent, :2]
+    r_m = r.reshape(-1, 3)[crossing]
+    u, h = _edge_terms(
+        x_tail[:, 2], head_xy, r_m, tau.flatten()[crossing], kappa.flatten()[crossing]
+    )
+    sigma = torch.where(head_in.flatten()[crossing], 1.0, -1.0).to(poses.dtype).unsqueeze(-1)
+    sums = torch.zeros(g, 7, dtype=poses.dtype, device=poses.device)
+    sums.index_add_(0, agent, torch.cat([sigma * u, h], -1))
+    if core.correction == "subtree":
+        mover = torch.gather(t["mover"].view(g, -1), 1, edge)
+        on_tree = torch.gather(t["tree_edge"].view(g, -1), 1, edge)
+    else:
+        mover, on_tree = q, edge < core.dims.edges
+    sign = torch.where(mover == q, 1.0, -1.0).to(poses.dtype)
+    rows_g = torch.arange(g, device=edge.device)
+    parts = [
+        t[f"{key}_parts"].view(3, 3, g, -1)[:, :, rows_g, edge[:, 0], None] for key in WHITENING
+    ]
+    gradient, hessian, step = _solve(
+        core, sums.unsqueeze(1), x_p[:, None, 2], sign, torch.zeros_like(x_q[:, None, :2]), parts
+    )
+    keep = on_tree.to(poses.dtype).unsqueeze(-1)
+    return BaseModel(gradient * keep, hessian * keep, step * keep, _local_f(r, tau, kappa))
+
+
+WHITENING = ("sqrt_information", "inverse_sqrt_information")
+
+
+def _local_f(r: torch.Tensor, tau: torch.Tensor, kappa: torch.Tensor) -> torch.Tensor:
+    """``(G,)`` the agent's local F = Σ ‖W r‖² of residuals ``r (G, E+1, 3)``."""
+    return (tau * _dot(r, r) + kappa * r[..., 2] ** 2).sum(-1)
+
+
+def _edge_terms(
+    theta_tail: torch.Tensor,
+    head_xy: torch.Tensor,
+    r: torch.Tensor,
+    tau: torch.Tensor,
+    kappa: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The candidate-free terms of the edges ``m = (a → b)`` (module docstring):
+    ``u_m (..., 3) = [τ R_a r_t, (S t_b)·(τ R_a r_t) + κ r_θ]`` and the four numbers
+    ``h_m (..., 4) = [τ, τ S t_b, τ ‖t_b‖² + κ]`` of ``K_mᵀ W² K_m`` (``R_a`` orthonormal), from
+    the tail's angle ``θ_a``, the head's position ``t_b`` relative to the chosen origin, the
+    residuals and the weights."""
+    lever = torch.stack([-head_xy[..., 1], head_xy[..., 0]], -1)  # S t_b
+    pull = tau.unsqueeze(-1) * _rotate(theta_tail, r[..., :2])  # τ R_a r_t
+    u = torch.cat([pull, (_dot(lever, pull) + kappa * r[..., 2]).unsqueeze(-1)], -1)
+    h = torch.stack(
+        [tau, tau * lever[..., 0], tau * lever[..., 1], tau * _dot(head_xy, head_xy) + kappa], -1
+    )
+    return u, h
+
+
+def _solve(
+    core: PGOCore,
+    sums: torch.Tensor,
+    theta_p: torch.Tensor,
+    sign: torch.Tensor,
+    m: torch.Tensor,
+    parts: list[torch.Tensor],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(gradient ``(..., 3)``, upper Hessian ``(..., 6)``, step ``(..., 3)``) in action units of
+    candidates with world-twist sums ``sums (..., 7)`` = [g_ξ (3), α, β (2), γ], tail angle
+    ``θ_p``, sign ``s_c``, ``m = −S t_q`` (relative to the sums' origin) and the whitening
+    ``parts`` [Λ^½, Λ^−½] by components ``(3, 3, ...)``.
+
+    Written out for the blocks: H_ξ is ``[[α I, β], [βᵀ, γ]]``, so
+    ``H_c = [[α I, R_pᵀ(α m + β)], [·, α ‖m‖² + 2 β·m + γ]]`` and
+    ``g_c = s_c [R_pᵀ g_t, m·g_t + g_θ]``, solved by its Schur complement."""
+    alpha, beta, gamma = sums[..., 3], sums[..., 4:6], sums[..., 6]
     coupling = _rotate(theta_p, alpha.unsqueeze(-1) * m + beta, transpose=True)
     angular = alpha * _dot(m, m) + 2 * _dot(beta, m) + gamma
     g_t = sign.unsqueeze(-1) * _rotate(theta_p, sums[..., :2], transpose=True)
@@ -207,17 +297,10 @@ def base_model(core: PGOCore) -> BaseModel:
     gradient = [g_t[..., 0], g_t[..., 1], g_theta]
     hessian = [h_c[key] for key in UPPER]
     if core.action_scale == "whitened":  # Δ_w = Λ^½ Δ, g_w = Aᵀ g, H_w = Aᵀ H A (A = Λ^−½)
-        root = t["sqrt_information_parts"].view(3, 3, g, -1)
-        inverse_root = t["inverse_sqrt_information_parts"].view(3, 3, g, -1)
+        root, inverse_root = parts
         step = _apply(root, step)
         fit = torch.minimum(fit, _fit(step, core.action_bound))
         gradient = _apply(inverse_root, gradient, transpose=True)
         hessian = _congruence(inverse_root, h_c)
     step = [component * fit for component in step]
-    keep = on_tree.to(poses.dtype)
-    return BaseModel(
-        torch.stack(gradient, -1) * keep.unsqueeze(-1),
-        torch.stack(hessian, -1) * keep.unsqueeze(-1),
-        torch.stack(step, -1) * keep.unsqueeze(-1),
-        local_f,
-    )
+    return torch.stack(gradient, -1), torch.stack(hessian, -1), torch.stack(step, -1)

@@ -55,9 +55,14 @@ Horizon
     episode ends exactly when every local edge of every agent was processed once.
 
 Cost per step
-    Residuals, per-edge costs and ``L`` are updated incrementally on the ``D`` edge slots incident
-    to each moved vertex (precomputed, padded incidence lists). Building the observation copies
-    the O(V + E) dynamic buffers (poses → node features, residuals, masks).
+    Residuals, per-edge costs and ``L`` are updated incrementally: on the ``D`` edge slots incident
+    to the moved vertex (precomputed, padded incidence lists) in the pose mode, on the edges that
+    cross the moved subtree's boundary in the subtree mode (found by three comparisons per edge
+    slot; only they are evaluated). The subtree move computes and writes the moved rows only,
+    and the Gauss–Newton base step is the chosen edge's alone, from its boundary edges
+    (:func:`envs.basestep.chosen_model`). Building the full observation copies the O(V + E)
+    dynamic buffers (poses → node features, residuals, masks; with the base step every
+    candidate's model); :meth:`observation_update` names only what the step changed.
 """
 
 from __future__ import annotations
@@ -68,7 +73,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from envs.basestep import BaseModel, base_model, matrix_parts
+from envs.basestep import BaseModel, base_model, chosen_model, matrix_parts
 from envs.geometry import (
     _gather_rows,
     _offset,
@@ -344,13 +349,13 @@ class PGOCore:
         tail = torch.gather(t["tails"].view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
         head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
+        inside = self.subtree_members(flat_edge)
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            delta = delta + self.base_step(edge)
+            delta = delta + chosen_model(self, flat_edge, inside).step.view(b, n, 3)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t["loss"].clone()
         if self.correction == "subtree":
-            moved, inside = self.subtree_move(poses, flat_edge, clipped)
-            poses.copy_(moved)
+            self._move_subtree(poses, flat_edge, clipped, inside)
             change, refreshed = self._refresh_boundary(inside)
         else:
             x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
@@ -358,8 +363,6 @@ class PGOCore:
             _scatter_rows(poses, head, moved)
             incident = _gather_rows(t["incident"].view(g, -1, self.dims.degree), head).squeeze(1)
             change = self._refresh_edges(incident)
-            inside = torch.zeros(poses.shape[:2], dtype=torch.bool, device=self.device)
-            inside.scatter_(1, head, True)
             refreshed = torch.zeros(g, e + 1, dtype=torch.bool, device=self.device)
             refreshed.scatter_(1, incident, True)
         self.last_moved, self.last_refreshed = inside, refreshed
@@ -385,13 +388,17 @@ class PGOCore:
             self._base_model = base_model(self)
         return self._base_model
 
+    def chosen_base_model(self, edge: torch.Tensor) -> BaseModel:
+        """The model of each agent's ``edge (B, n)`` alone (:func:`envs.basestep.chosen_model`:
+        O(the edges crossing the moved subtree's boundary)), fields ``(B·n, 1, ...)``."""
+        g = self.batch * self.num_agents
+        flat_edge = edge.to(self.device, torch.int64).reshape(g, 1)
+        return chosen_model(self, flat_edge, self.subtree_members(flat_edge))
+
     def base_step(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` the Gauss–Newton step Δ_GN of each agent's ``edge (B, n)`` (0 off the
         tree), in the action's units."""
-        g = self.batch * self.num_agents
-        flat_edge = edge.to(self.device, torch.int64).reshape(g, 1)
-        step = _gather_rows(self.base_model().step, flat_edge)
-        return step.view(self.batch, self.num_agents, 3)
+        return self.chosen_base_model(edge).step.view(self.batch, self.num_agents, 3)
 
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
@@ -405,13 +412,38 @@ class PGOCore:
             delta = (_gather_rows(inverse_root, edge) @ delta.unsqueeze(-1)).squeeze(-1)
         return torch.maximum(torch.minimum(delta, self.delta_max), -self.delta_max)
 
+    def subtree_members(self, edge: torch.Tensor) -> torch.Tensor:
+        """``(G, V+1)`` bool: the vertices a correction of the edge slots ``edge (G, 1)`` moves
+        (the mover's subtree, a contiguous range of pre-order positions; the head alone in the
+        pose mode; only the trash vertex for the no-op)."""
+        t = self.tensors
+        g = edge.shape[0]
+        if self.correction == "pose":
+            head = torch.gather(t["heads"].view(g, -1), 1, edge)
+            return torch.arange(self.dims.vertices + 1, device=self.device) == head
+        mover = torch.gather(t["mover"].view(g, -1), 1, edge)
+        position = t["tree_position"].view(g, -1)
+        start = torch.gather(position, 1, mover)
+        stop = torch.gather(t["tree_end"].view(g, -1), 1, mover)
+        return (position >= start) & (position < stop)
+
     def subtree_move(
         self, poses: torch.Tensor, edge: torch.Tensor, delta: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The correction, out of place: ``(moved poses (G, V+1, 3), inside (G, V+1))`` for
         ``poses (G, V+1, 3)``, edge slots ``edge (G, 1)`` and metric ``delta (G, 1, 3)``;
-        ``inside`` flags the moved subtree (only the trash vertex for the no-op). In the pose
-        mode the "subtree" is the head alone (eq. C)."""
+        ``inside``: :meth:`subtree_members`."""
+        inside = self.subtree_members(edge)
+        moved = poses.clone()
+        self._move_subtree(moved, edge, delta, inside)
+        return moved, inside
+
+    def _move_subtree(
+        self, poses: torch.Tensor, edge: torch.Tensor, delta: torch.Tensor, inside: torch.Tensor
+    ) -> None:
+        """Move the vertices ``inside`` of ``poses (G, V+1, 3)`` rigidly, in place, so that the
+        relative pose of each edge slot ``edge (G, 1)`` changes by ``delta (G, 1, 3)``; only the
+        moved rows are computed and written."""
         t = self.tensors
         g = edge.shape[0]
         tail = torch.gather(t["tails"].view(g, -1), 1, edge)
@@ -425,37 +457,38 @@ class PGOCore:
         moves_head = (mover == head).unsqueeze(-1)
         old = torch.where(moves_head, x_q, x_p)
         new = torch.where(moves_head, compose(x_p, relative), compose(x_q, inverse(relative)))
-        position = t["tree_position"].view(g, -1)
-        start = torch.gather(position, 1, mover)
-        stop = torch.gather(t["tree_end"].view(g, -1), 1, mover)
-        inside = (position >= start) & (position < stop)
-        if self.correction == "pose":
-            inside = torch.arange(position.shape[1], device=self.device) == mover
         transform = compose(new, inverse(old))  # the subtree's rigid motion, world frame
-        moved = torch.where(inside.unsqueeze(-1), compose(transform, poses), poses)
-        return moved, inside
+        rows = inside.flatten().nonzero().squeeze(-1)
+        flat = poses.view(-1, 3)
+        flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
 
     def _refresh_boundary(self, inside: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Recompute residuals and target costs of the edges with exactly one endpoint in the
-        moved subtree ``inside (G, V+1)``; return the change of ``L`` per agent, ``(G,)``, and
-        those edges, ``(G, E+1)`` bool."""
+        moved subtree ``inside (G, V+1)`` (only those); return the change of ``L`` per agent,
+        ``(G,)``, and those edges, ``(G, E+1)`` bool."""
         t = self.tensors
         g = inside.shape[0]
         poses = t["poses"].view(g, -1, 3)
         tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
         crossing = torch.gather(inside, 1, tails) != torch.gather(inside, 1, heads)
-        relative = between(_gather_rows(poses, tails), _gather_rows(poses, heads))
-        r = _offset(relative, t["measurements"].view(g, -1, 3))
+        slots = crossing.flatten().nonzero().squeeze(-1)
+        agent = slots // tails.shape[1]
+        flat_poses = poses.reshape(-1, 3)
+        offset = agent * poses.shape[1]
+        relative = between(
+            flat_poses[offset + tails.flatten()[slots]], flat_poses[offset + heads.flatten()[slots]]
+        )
+        r = _offset(relative, t["measurements"].view(-1, 3)[slots])
         if self.reward_kind == "F":  # the targets are the measurements
             target_r = r
         else:
-            target_r = _offset(relative, t["targets"].view(g, -1, 3))
-        cost = edge_costs(target_r, t["kappa"].view(g, -1), t["tau"].view(g, -1))
-        costs = t["costs"].view(g, -1)
-        change = torch.where(crossing, cost - costs, torch.zeros_like(cost)).sum(-1)
-        old_r = t["residuals"].view(g, -1, 3)
-        old_r.copy_(torch.where(crossing.unsqueeze(-1), r, old_r))
-        costs.copy_(torch.where(crossing, cost, costs))
+            target_r = _offset(relative, t["targets"].view(-1, 3)[slots])
+        cost = edge_costs(target_r, t["kappa"].view(-1)[slots], t["tau"].view(-1)[slots])
+        costs = t["costs"].view(-1)
+        change = torch.zeros(g, dtype=cost.dtype, device=self.device)
+        change.index_add_(0, agent, cost - costs[slots])
+        t["residuals"].view(-1, 3)[slots] = r
+        costs[slots] = cost
         return change, crossing
 
     def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:

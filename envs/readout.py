@@ -65,6 +65,14 @@ def base_observation(core: PGOCore) -> dict[str, torch.Tensor]:
     }
 
 
+def chosen_base_observation(core: PGOCore, edge: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(base_step (B·n, 3), base_model (B·n, 9))`` float32 of each agent's ``edge (B, n)``
+    alone, as :func:`base_observation` gives them for every edge, at O(the edges crossing the
+    moved subtree's boundary) (:meth:`envs.core.PGOCore.chosen_base_model`)."""
+    model = core.chosen_base_model(edge)
+    return model.step[:, 0].to(torch.float32), observed_model(model)[:, 0].to(torch.float32)
+
+
 def observation_changes(
     core: PGOCore,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -105,3 +105,39 @@ def test_lowest_common_ancestors_against_parent_walks() -> None:
     pairs = zip(a, b, strict=True)
     expected = [next(x for x in ancestors(i) if x in set(ancestors(j))) for i, j in pairs]
     np.testing.assert_array_equal(lowest_common_ancestors(tree, a, b), expected)
+
+
+@pytest.mark.parametrize(
+    "modes",
+    [
+        {"correction": "subtree"},
+        {"correction": "subtree", "action_scale": "whitened"},
+        {"correction": "pose", "action_scale": "whitened"},
+    ],
+)
+def test_chosen_model_equals_every_candidates_model(modes: dict) -> None:
+    """The model of the chosen edge alone (sums over its crossing edges, what the environment
+    executes and prop-v1 reads) equals that edge's row of the subtree-sum model of every
+    candidate, to 1e-9 of the field's largest entry, on random states."""
+    problems = [make_problem(seed=seed, **SMALL) for seed in (5, 6)]
+    core = PGOCore(3, Dimensions.of(problems), 2, reward="F", **modes)
+    core.load(problems, range(2))
+    generator = torch.Generator().manual_seed(1)
+    checked = 0
+    for _ in range(6):
+        model = core.base_model()
+        for _ in range(8):  # random candidates, padding and the no-op included
+            edge = torch.randint(0, core.dims.edges + 1, (2, 3), generator=generator)
+            chosen = core.chosen_base_model(edge)
+            rows = edge.view(6, 1)
+            for field in ("gradient", "hessian", "step"):
+                expected = _gather_rows(getattr(model, field), rows)
+                got = getattr(chosen, field)
+                scale = float(getattr(model, field).abs().max())  # prefix sums cancel
+                torch.testing.assert_close(got, expected, rtol=1e-9, atol=1e-9 * scale)
+            torch.testing.assert_close(chosen.local_f, model.local_f, rtol=1e-12, atol=0.0)
+            checked += int((chosen.step.abs().sum((-1, -2)) > 0).sum())
+        mask = core.action_mask()
+        edge = torch.where(mask, torch.rand(mask.shape, generator=generator), -1.0).argmax(-1)
+        core.step(edge, 0.5 * torch.randn(2, 3, 3, generator=generator, dtype=torch.float64))
+    assert checked > 30

@@ -298,3 +298,57 @@ def test_conformance_in_every_mode(modes: dict) -> None:
     td = env.rollout(40, break_when_any_done=False)
     assert torch.isfinite(td["next", "agents", "reward"]).all()
     parallel_api_test(make_pettingzoo_env(seed=0, **SMALL, **modes), num_cycles=100)
+
+
+@pytest.mark.parametrize("correction", ["subtree", "pose"])
+def test_moved_rows_equal_a_rigid_motion_of_the_walked_subtree(correction: str) -> None:
+    """The step moves only the mover's subtree (found here by walking parent pointers, not by
+    pre-order ranges), by one rigid motion that changes the chosen edge's relative pose by Δ:
+    every moved pose equals that motion applied to its old pose (numpy SE(2)) to 1e-9
+    relative, every other pose is bitwise unchanged."""
+    problems = [make_problem(seed=seed, **SMALL) for seed in range(2)]
+    core = make_core(problems, correction=correction, reward="F")
+    generator = torch.Generator().manual_seed(3)
+    for _ in range(12):
+        mask = core.action_mask().flatten(0, 1).to(torch.float64)
+        edge = torch.multinomial(mask, 1, generator=generator).view(2, 3)
+        delta = (torch.rand(2, 3, 3, generator=generator, dtype=torch.float64) - 0.5) * 0.4
+        before = core.tensors["poses"].clone().numpy()
+        core.step(edge, delta)
+        after = core.tensors["poses"].numpy()
+        for element in range(2):
+            for agent in range(3):
+                chosen = int(edge[element, agent])
+                old, new = before[element, agent], after[element, agent]
+                if chosen == core.dims.edges:  # the no-op moves nothing real
+                    np.testing.assert_array_equal(new[:-1], old[:-1])
+                    continue
+                t = core.tensors
+                tail = int(t["tails"][element, agent, chosen])
+                head = int(t["heads"][element, agent, chosen])
+                if correction == "pose":
+                    mover, parent = head, None
+                else:
+                    mover = int(t["mover"][element, agent, chosen])
+                    parent = t["tree_parent"][element, agent].numpy()
+                count = problems[element].local_graphs[agent].num_vertices
+                if parent is None:
+                    subtree = np.arange(count) == mover
+                else:  # v is inside iff walking up from v reaches the mover
+                    subtree = np.zeros(count, bool)
+                    for vertex in range(count):
+                        walk = vertex
+                        while walk != mover and parent[walk] != walk:
+                            walk = parent[walk]
+                        subtree[vertex] = walk == mover
+                motion = se2.compose(new[mover], se2.inverse(old[mover]))
+                np.testing.assert_allclose(
+                    new[:count][subtree], se2.compose(motion, old[:count][subtree]), atol=1e-9
+                )
+                np.testing.assert_array_equal(new[:count][~subtree], old[:count][~subtree])
+                relative = se2.between(new[tail], new[head]) - se2.between(old[tail], old[head])
+                relative[2] = se2.wrap(relative[2])
+                metric = core.metric_delta(
+                    torch.tensor([[chosen]]), delta[element, agent].view(1, 1, 3)
+                )
+                np.testing.assert_allclose(relative, metric.view(3).numpy(), atol=1e-9)
