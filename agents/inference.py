@@ -49,6 +49,7 @@ from agents.encoder import (
     GraphBatch,
     base_inputs,
     edge_embeddings,
+    mix_bases,
 )
 
 
@@ -152,64 +153,62 @@ class IncrementalPolicy:
         n_nodes, n_edges = self.h[0].shape[0] - 1, self.valid.shape[0] - 1
         encoder = self.actor.encoder
         vertices = changed
+        incident = self._edges_at(vertices)  # the real edges at `vertices`, kept in step with it
         for layer, (conv, gate) in enumerate(zip(encoder.convs, encoder.gates, strict=True)):
             # Residuals feed every layer's gate: the edges of `first_edges` are refreshed too.
-            edges = _members(torch.cat([self._edges_at(vertices), first_edges]), n_edges)
-            self.bases[layer][vertices] = conv.bases(self.h[layer][vertices])
-            shape = (-1, conv.num_bases, conv.out_dim)
+            edges = _members(torch.cat([incident, first_edges]), n_edges)
+            bases = self.bases[layer]
+            bases.index_copy_(0, vertices, conv.bases(self.h[layer].index_select(0, vertices)))
             forward_coeff, reverse_coeff = self.coefficients[layer]
+            tails, heads = self.tails.index_select(0, edges), self.heads.index_select(0, edges)
             # eq. ecc_message: the forward message goes head → tail, the reverse tail → head.
-            m_forward = torch.einsum(
-                "mk,mko->mo", forward_coeff[edges], self.bases[layer][self.heads[edges]].view(shape)
+            m_forward = mix_bases(
+                forward_coeff.index_select(0, edges), bases.index_select(0, heads), conv.out_dim
             )
-            m_reverse = torch.einsum(
-                "mk,mko->mo", reverse_coeff[edges], self.bases[layer][self.tails[edges]].view(shape)
+            m_reverse = mix_bases(
+                reverse_coeff.index_select(0, edges), bases.index_select(0, tails), conv.out_dim
             )
-            self.messages[layer][0][edges] = m_forward
-            self.messages[layer][1][edges] = m_reverse
-            self.gates[layer][edges] = (
-                gate(
-                    0.5 * (m_forward + m_reverse),
-                    self.residuals[edges],
-                    self.log_info[edges],
-                    self.inter_loop[edges],
-                    deterministic=True,
-                )
-                * self.valid[edges]
+            self.messages[layer][0].index_copy_(0, edges, m_forward)
+            self.messages[layer][1].index_copy_(0, edges, m_reverse)
+            z = gate(
+                0.5 * (m_forward + m_reverse),
+                self.residuals.index_select(0, edges),
+                self.log_info.index_select(0, edges),
+                self.inter_loop.index_select(0, edges),
+                deterministic=True,
             )
-            ends = torch.cat([vertices, self.tails[edges], self.heads[edges]])
-            vertices = _members(ends, n_nodes)
-            updated = self._node_update(layer, conv, vertices)
+            self.gates[layer].index_copy_(0, edges, z * self.valid.index_select(0, edges))
+            vertices = _members(torch.cat([vertices, tails, heads]), n_nodes)
+            incident = self._edges_at(vertices)
+            updated = self._node_update(layer, conv, vertices, incident)
             if layer == len(encoder.convs) - 1:  # masked sum behind the mean-pooled latent
                 change = (updated - self.h[-1][vertices]) * self.node_weight[vertices, None]
                 self.pooled_sum.index_add_(0, vertices // self.shape[1], change)
-            self.h[layer + 1][vertices] = updated
-        self._refresh_readout(vertices)
+            self.h[layer + 1].index_copy_(0, vertices, updated)
+        self._refresh_readout(incident)
 
-    def _node_update(self, layer: int, conv, vertices: Tensor) -> Tensor:
+    def _node_update(self, layer: int, conv, vertices: Tensor, edges: Tensor) -> Tensor:
         """h^(ℓ+1) of `vertices` (ascending flat ids) from cached gated messages (eqs. mean_aggr,
-        node_update): each incident edge's gated message is added at its endpoint's row, over
-        the real incident edges only (O(their count), not O(|vertices| · max degree))."""
-        edges = self._edges_at(vertices)
-        z = self.gates[layer][edges].unsqueeze(-1)
+        node_update): the gated message of each of their real incident `edges` (ascending flat
+        ids) is added at its endpoint's row (O(their count), not O(|vertices| · max degree))."""
+        z = self.gates[layer].index_select(0, edges).unsqueeze(-1)
         forward, reverse = self.messages[layer]
         count = vertices.numel()
         summed = torch.zeros(count + 1, forward.shape[1])
         for ends, messages in ((self.tails, forward), (self.heads, reverse)):
-            end = ends[edges]
+            end = ends.index_select(0, edges)
             row = torch.searchsorted(vertices, end).clamp(max=count - 1)
             row = torch.where(vertices[row] == end, row, count)  # an end outside: the spare row
-            summed.index_add_(0, row, z * messages[edges])
-        mean = summed[:count] / self.degree[vertices].unsqueeze(-1)
-        h = self.h[layer][vertices]
+            summed.index_add_(0, row, z * messages.index_select(0, edges))
+        mean = summed[:count] / self.degree.index_select(0, vertices).unsqueeze(-1)
+        h = self.h[layer].index_select(0, vertices)
         return conv.activation(conv.update_net(torch.cat([h, mean], -1)))
 
-    def _refresh_readout(self, vertices: Tensor) -> None:
-        """Edge embeddings and the edge head's first layer for the edges touching the
-        final-layer `vertices` (whose h^(L) was just rewritten)."""
+    def _refresh_readout(self, edges: Tensor) -> None:
+        """Edge embeddings and the edge head's first layer for `edges` (ascending flat ids), the
+        edges touching the final-layer vertices whose h^(L) was just rewritten."""
         e = self.shape[2]
         final = self.h[-1]
-        edges = self._edges_at(vertices)
         graph_of, slot = edges // e, edges % e
         # encoder.edge_embeddings on the refreshed edges, as one graph over the flat vertex ids.
         k = edges.numel()
@@ -224,11 +223,13 @@ class IncrementalPolicy:
             action_mask=torch.ones(1, k + 1, dtype=torch.bool),
         )
         embedding = edge_embeddings(final.unsqueeze(0), refreshed)[0, :k]
-        self.embeddings[graph_of, slot] = embedding
-        real = slot < e
-        self.head_hidden[graph_of[real], self.position[graph_of[real], slot[real]]] = (
-            embedding[real] @ self.head_embedding_weight.T
-        )
+        width = self.embeddings.shape[-1]
+        self.embeddings.view(-1, width).index_copy_(0, graph_of * (e + 1) + slot, embedding)
+        real = torch.nonzero(slot < e).squeeze(-1)
+        graph_of, slot = graph_of[real], slot[real]
+        rows = graph_of * e + self.position.view(-1)[graph_of * e + slot]
+        hidden = self.head_hidden.view(-1, self.head_hidden.shape[-1])
+        hidden.index_copy_(0, rows, embedding[real] @ self.head_embedding_weight.T)
 
     # -- acting ----------------------------------------------------------------------------------
 
