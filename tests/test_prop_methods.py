@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import require_dataset
 
 from agents.actor import HybridActor
 from agents.checkpoint import save_checkpoint
@@ -295,3 +296,46 @@ def test_train_config_set_changes_one_setting_of_the_preset() -> None:
     assert config.algorithm.reward == "F"  # the rest is the preset's
     with pytest.raises(ValueRangeError, match="PART one of model"):
         train_config("V2", 7, 0, None, "cpu", None, "cpu-residual", settings=["a.b=1"])
+
+
+def test_boundary_step_equals_the_full_recomputation_on_the_quick_table(monkeypatch) -> None:
+    """prop-v1 with the committed actor on the quick table's cell (mit, n = 3, odometry start):
+    the step's O(boundary) work — the chosen edge's base step from its crossing edges, the
+    refresh of the crossing edges only — gives F within 1e-6 relative of a run whose every step
+    recomputes the base step from every candidate's model and every edge's residual and cost."""
+    import envs.core
+    from envs.basestep import base_model
+    from envs.geometry import _gather_rows, residuals
+    from popbench.harness.problems import distributed_problem
+
+    require_dataset("mit")
+    problem = distributed_problem("mit", 3, "odometry")
+    boundary = solve_prop_v1(problem, Budget())
+
+    def full_model(core, edge, inside):
+        model = base_model(core)
+        return type(model)(*(_gather_rows(field, edge) for field in model[:3]), model.local_f)
+
+    def full_refresh(core, inside):
+        t = core.tensors
+        g = inside.shape[0]
+        crossing = torch.gather(inside, 1, t["tails"].view(g, -1)) != torch.gather(
+            inside, 1, t["heads"].view(g, -1)
+        )
+        poses = t["poses"].view(g, -1, 3)
+        tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+        x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
+        r = residuals(x_p, x_q, t["measurements"].view(g, -1, 3))
+        cost = objective.edge_costs(r, t["kappa"].view(g, -1), t["tau"].view(g, -1))
+        real = t["edge_mask"].view(g, -1)
+        change = (cost[:, :-1] * real).sum(-1) - (t["costs"].view(g, -1)[:, :-1] * real).sum(-1)
+        t["residuals"].view(g, -1, 3).copy_(r)
+        t["costs"].view(g, -1).copy_(cost)
+        return change, crossing
+
+    monkeypatch.setattr(envs.core, "chosen_model", full_model)
+    monkeypatch.setattr(envs.core.PGOCore, "_refresh_boundary", full_refresh)
+    full = solve_prop_v1(problem, Budget())
+    assert full.extras["step_ms_mean"] > 0
+    assert boundary.F == pytest.approx(full.F, rel=1e-6)
+    assert boundary.extras["F_episode"] == pytest.approx(full.extras["F_episode"], rel=1e-6)
