@@ -17,7 +17,7 @@ mm-pgo's 1000 iterations (baselines.mm_pgo.solve, from the same odometry start),
 F, wall and simulated parallel time, the wall-time ratio mm-pgo / prop-v1 and prop-v1's split of
 its wall time: the actor episode (the actor's decisions, IncrementalPolicy.act; the environment
 step, PGOCore.step, of which the Gauss–Newton base step of the chosen edges,
-envs.basestep.chosen_model; the incremental observation, PGOCore.observation_update +
+envs.basestep.chosen_step; the incremental observation, PGOCore.observation_update +
 IncrementalPolicy.observe_update) and the consensus (of which SuperLU's factorisations, splu in
 popbench.consensus_system), measured by
 wrapping those functions with timers for the run.
@@ -111,7 +111,7 @@ PHASES = (
     ("actor: observation update", "agents.inference", "IncrementalPolicy.observe_update"),
     ("actor: observation update", "envs.core", "PGOCore.observation_update"),
     ("env step (PGOCore.step)", "envs.core", "PGOCore.step"),
-    ("  of which Gauss–Newton base", "envs.core", "chosen_model"),
+    ("  of which Gauss–Newton base", "envs.core", "chosen_step"),
     ("consensus: SuperLU splu", "popbench.consensus_system", "splu"),
 )
 

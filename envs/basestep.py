@@ -188,8 +188,26 @@ def chosen_model(core: PGOCore, edge: torch.Tensor, inside: torch.Tensor) -> Bas
     correction moves the vertices ``inside (G, V+1)`` (:meth:`envs.core.PGOCore.subtree_members`):
     the sums of the module docstring taken directly over the edges that cross the subtree's
     boundary, with positions relative to the chosen edge's head (so ``m = 0``). Work: three
-    comparisons per edge slot to find the crossing edges, then O(crossing edges). Fields as
-    :class:`BaseModel` with the edge axis of length 1."""
+    comparisons per edge slot to find the crossing edges, then O(crossing edges); the local F,
+    O(E). Fields as :class:`BaseModel` with the edge axis of length 1."""
+    gradient, hessian, step = _chosen(core, edge, inside, model=True)
+    t = core.tensors
+    g = edge.shape[0]
+    r, tau, kappa = t["residuals"].view(g, -1, 3), t["tau"].view(g, -1), t["kappa"].view(g, -1)
+    return BaseModel(gradient, hessian, step, _local_f(r, tau, kappa))
+
+
+def chosen_step(core: PGOCore, edge: torch.Tensor, inside: torch.Tensor) -> torch.Tensor:
+    """``(G, 1, 3)`` the Gauss–Newton step Δ_GN of :func:`chosen_model` alone (what the
+    environment executes), without the model's whitening and the local F."""
+    return _chosen(core, edge, inside, model=False)[2]
+
+
+def _chosen(
+    core: PGOCore, edge: torch.Tensor, inside: torch.Tensor, model: bool
+) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+    """(gradient, hessian, step) of :func:`chosen_model`; gradient and Hessian None unless
+    ``model``."""
     t = core.tensors
     g = edge.shape[0]
     poses = t["poses"].view(g, -1, 3)
@@ -224,10 +242,18 @@ def chosen_model(core: PGOCore, edge: torch.Tensor, inside: torch.Tensor) -> Bas
         t[f"{key}_parts"].view(3, 3, g, -1)[:, :, rows_g, edge[:, 0], None] for key in WHITENING
     ]
     gradient, hessian, step = _solve(
-        core, sums.unsqueeze(1), x_p[:, None, 2], sign, torch.zeros_like(x_q[:, None, :2]), parts
+        core,
+        sums.unsqueeze(1),
+        x_p[:, None, 2],
+        sign,
+        torch.zeros_like(x_q[:, None, :2]),
+        parts,
+        model,
     )
     keep = on_tree.to(poses.dtype).unsqueeze(-1)
-    return BaseModel(gradient * keep, hessian * keep, step * keep, _local_f(r, tau, kappa))
+    if not model:
+        return None, None, step * keep
+    return gradient * keep, hessian * keep, step * keep
 
 
 WHITENING = ("sqrt_information", "inverse_sqrt_information")
@@ -266,11 +292,13 @@ def _solve(
     sign: torch.Tensor,
     m: torch.Tensor,
     parts: list[torch.Tensor],
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    model: bool = True,
+) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
     """(gradient ``(..., 3)``, upper Hessian ``(..., 6)``, step ``(..., 3)``) in action units of
     candidates with world-twist sums ``sums (..., 7)`` = [g_ξ (3), α, β (2), γ], tail angle
     ``θ_p``, sign ``s_c``, ``m = −S t_q`` (relative to the sums' origin) and the whitening
-    ``parts`` [Λ^½, Λ^−½] by components ``(3, 3, ...)``.
+    ``parts`` [Λ^½, Λ^−½] by components ``(3, 3, ...)``; without ``model`` the step alone
+    (gradient and Hessian None).
 
     Written out for the blocks: H_ξ is ``[[α I, β], [βᵀ, γ]]``, so
     ``H_c = [[α I, R_pᵀ(α m + β)], [·, α ‖m‖² + 2 β·m + γ]]`` and
@@ -296,11 +324,15 @@ def _solve(
     fit = _fit(step, core.delta_max)
     gradient = [g_t[..., 0], g_t[..., 1], g_theta]
     hessian = [h_c[key] for key in UPPER]
-    if core.action_scale == "whitened":  # Δ_w = Λ^½ Δ, g_w = Aᵀ g, H_w = Aᵀ H A (A = Λ^−½)
+    whitened = core.action_scale == "whitened"
+    if whitened:  # Δ_w = Λ^½ Δ, g_w = Aᵀ g, H_w = Aᵀ H A (A = Λ^−½)
         root, inverse_root = parts
         step = _apply(root, step)
         fit = torch.minimum(fit, _fit(step, core.action_bound))
+    step = torch.stack([component * fit for component in step], -1)
+    if not model:
+        return None, None, step
+    if whitened:
         gradient = _apply(inverse_root, gradient, transpose=True)
         hessian = _congruence(inverse_root, h_c)
-    step = [component * fit for component in step]
-    return torch.stack(gradient, -1), torch.stack(hessian, -1), torch.stack(step, -1)
+    return torch.stack(gradient, -1), torch.stack(hessian, -1), step

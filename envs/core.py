@@ -73,7 +73,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from envs.basestep import BaseModel, base_model, chosen_model, matrix_parts
+from envs.basestep import BaseModel, base_model, chosen_model, chosen_step, matrix_parts
 from envs.geometry import (
     _gather_rows,
     _offset,
@@ -351,7 +351,7 @@ class PGOCore:
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
         inside = self.subtree_members(flat_edge)
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            delta = delta + chosen_model(self, flat_edge, inside).step.view(b, n, 3)
+            delta = delta + chosen_step(self, flat_edge, inside).view(b, n, 3)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t["loss"].clone()
         if self.correction == "subtree":
@@ -397,8 +397,11 @@ class PGOCore:
 
     def base_step(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` the Gauss–Newton step Δ_GN of each agent's ``edge (B, n)`` (0 off the
-        tree), in the action's units."""
-        return self.chosen_base_model(edge).step.view(self.batch, self.num_agents, 3)
+        tree), in the action's units (:func:`envs.basestep.chosen_step`)."""
+        g = self.batch * self.num_agents
+        flat_edge = edge.to(self.device, torch.int64).reshape(g, 1)
+        step = chosen_step(self, flat_edge, self.subtree_members(flat_edge))
+        return step.view(self.batch, self.num_agents, 3)
 
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots

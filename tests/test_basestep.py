@@ -136,6 +136,7 @@ def test_chosen_model_equals_every_candidates_model(modes: dict) -> None:
                 scale = float(getattr(model, field).abs().max())  # prefix sums cancel
                 torch.testing.assert_close(got, expected, rtol=1e-9, atol=1e-9 * scale)
             torch.testing.assert_close(chosen.local_f, model.local_f, rtol=1e-12, atol=0.0)
+            assert torch.equal(core.base_step(edge).view(6, 1, 3), chosen.step)  # step alone
             checked += int((chosen.step.abs().sum((-1, -2)) > 0).sum())
         mask = core.action_mask()
         edge = torch.where(mask, torch.rand(mask.shape, generator=generator), -1.0).argmax(-1)
