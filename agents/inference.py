@@ -11,9 +11,11 @@ edge-conditioned layers, a move of vertex q changes
 so `IncrementalPolicy` caches, per layer, the node embeddings, the basis products B_k h of every
 node (encoder.EdgeConditionedConv), both directed messages and the gate z of every edge, and
 recomputes only the ℓ-hop rows (S grows by one hop per layer: O(D^L) rows, independent of the
-graph size). The edge embeddings (encoder.edge_embeddings: [h_p ‖ h_q ‖ a_pq ‖ …]), the first
-layer of the edge-selection head applied to them, and the masked sum behind the mean-pooled
-latent are cached the same way.
+graph size). In the subtree correction a step changes the residuals of every edge crossing the
+moved subtree's boundary, and each feeds every layer's gate, so S is the L-hop neighbourhood of
+that boundary (docs/prop_speed.md measures it). The edge embeddings (encoder.edge_embeddings:
+[h_p ‖ h_q ‖ a_pq ‖ …]), the first layer of the edge-selection head applied to them, and the
+masked sum behind the mean-pooled latent are cached the same way.
 
 What stays O(unprocessed edges) per step, with a small constant: scoring every unprocessed edge
 (the edge head's ReLU + last layer on cached first-layer outputs; the memory context changes
