@@ -15,6 +15,11 @@ from envs.tree import lowest_common_ancestors, spanning_tree
 from popbench.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 16}
+MODES = [  # correction modes with the base step, metric and whitened
+    {"correction": "subtree"},
+    {"correction": "subtree", "action_scale": "whitened"},
+    {"correction": "pose", "action_scale": "whitened"},
+]
 
 
 def local_f(core: PGOCore, poses: torch.Tensor) -> torch.Tensor:
@@ -47,14 +52,7 @@ def finite_difference_model(core: PGOCore, edge: int, step: float = 1e-5):
     return gradient
 
 
-@pytest.mark.parametrize(
-    "modes",
-    [
-        {"correction": "subtree"},
-        {"correction": "subtree", "action_scale": "whitened"},
-        {"correction": "pose", "action_scale": "whitened"},
-    ],
-)
+@pytest.mark.parametrize("modes", MODES)
 def test_base_gradient_matches_finite_differences(modes: dict) -> None:
     problems = [make_problem(seed=seed, **SMALL) for seed in (3, 4)]
     core = PGOCore(3, Dimensions.of(problems), 2, reward="F", **modes)
@@ -107,14 +105,7 @@ def test_lowest_common_ancestors_against_parent_walks() -> None:
     np.testing.assert_array_equal(lowest_common_ancestors(tree, a, b), expected)
 
 
-@pytest.mark.parametrize(
-    "modes",
-    [
-        {"correction": "subtree"},
-        {"correction": "subtree", "action_scale": "whitened"},
-        {"correction": "pose", "action_scale": "whitened"},
-    ],
-)
+@pytest.mark.parametrize("modes", MODES)
 def test_chosen_model_equals_every_candidates_model(modes: dict) -> None:
     """The model of the chosen edge alone (sums over its crossing edges, what the environment
     executes and prop-v1 reads) equals that edge's row of the subtree-sum model of every
