@@ -56,6 +56,7 @@ import time
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -70,6 +71,9 @@ from popbench import objective
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result, method_record
 from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
+
+if TYPE_CHECKING:
+    from envs.core import PGOCore
 
 DEFAULT_CHECKPOINT = method_record("prop-v1").checkpoint_path()  # the record's checkpoint
 CHECKPOINT_DIR = DEFAULT_CHECKPOINT.parent
@@ -149,6 +153,22 @@ def flag_gate(
     return reconciled_gate(fitted.encoder, task, problem, poses), fitted.threshold
 
 
+def episode_core(actor: HybridActor, problem: DistributedProblem, task: TaskConfig) -> PGOCore:
+    """The one-problem environment (``B = 1``, reward F) of the actor's `task`, loaded with
+    `problem`, in which prop-v1's episode runs."""
+    from envs.core import PGOCore
+    from envs.observation import Dimensions
+
+    if task.action_scale == "metric":  # the actor's bound is Δmax itself
+        core_options = {"delta_max": actor.delta_max.tolist()}
+    else:  # the actor's bound is the whitened one; the environment keeps its metric Δmax
+        core_options = {}
+    dims = Dimensions.of([problem])
+    core = PGOCore(problem.num_robots, dims, 1, reward="F", **core_options, **task.core_options())
+    core.load([problem], [0])
+    return core
+
+
 def run_episode(
     actor: HybridActor,
     problem: DistributedProblem,
@@ -163,19 +183,12 @@ def run_episode(
     of steps done after each step (progress display); `task` is the environment the actor was
     trained in (its checkpoint's); `correction=False` executes Δ := 0 on the actor's edge (in a
     `base="gauss-newton"` task: the base step alone; the actor's memory still reads its own Δ)."""
-    from envs.core import PGOCore
-    from envs.observation import Dimensions
     from envs.readout import chosen_base_observation
 
     start = time.perf_counter()
     n = problem.num_robots
-    dims = Dimensions.of([problem])
-    if task.action_scale == "metric":  # the actor's bound is Δmax itself
-        core_options = {"delta_max": actor.delta_max.tolist()}
-    else:  # the actor's bound is the whitened one; the environment keeps its metric Δmax
-        core_options = {}
-    core = PGOCore(n, dims, 1, reward="F", **core_options, **task.core_options())
-    core.load([problem], [0])
+    core = episode_core(actor, problem, task)
+    dims = core.dims
     t = core.tensors
     observation = {key: value[0] for key, value in core.observation().items()}
     graphs = GraphBatch(**observation, action_mask=core.action_mask()[0])

@@ -44,7 +44,7 @@ from agents.actor import HybridActor
 from agents.checkpoint import load_actor, save_checkpoint
 from agents.config import CPU_SMALL, TaskConfig
 from agents.encoder import GraphBatch
-from agents.methods import DEFAULT_CHECKPOINT, run_episode, solve_prop_v1
+from agents.methods import DEFAULT_CHECKPOINT, episode_core, run_episode, solve_prop_v1
 from popbench.methods import Budget
 from popbench.synthetic import make_problem
 
@@ -66,14 +66,9 @@ def actor_for(path: Path) -> tuple[HybridActor, TaskConfig, Path]:
 @torch.no_grad()
 def full_pass_seconds(actor: HybridActor, task: TaskConfig, problem, repeats: int) -> float:
     """Median time of one full (non-incremental) deterministic actor pass on `problem`, in the
-    environment of the actor's `task` (as agents.methods.run_episode builds it)."""
-    from envs.core import PGOCore
-    from envs.observation import Dimensions
-
+    environment of the actor's `task` (agents.methods.episode_core, as prop-v1's episode)."""
     n = problem.num_robots
-    metric = {"delta_max": actor.delta_max.tolist()} if task.action_scale == "metric" else {}
-    core = PGOCore(n, Dimensions.of([problem]), 1, reward="F", **metric, **task.core_options())
-    core.load([problem], [0])
+    core = episode_core(actor, problem, task)
     obs = core.observation()
     graphs = GraphBatch(
         **{key: value.reshape(n, *value.shape[2:]) for key, value in obs.items()},

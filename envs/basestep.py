@@ -24,7 +24,8 @@ ancestor does). Subtrees are contiguous pre-order ranges, so every subtree sum i
 of two prefix sums: all candidates cost O(V + E) per step, one evaluation of every edge
 (:func:`base_model`, for the training observation, which shows every candidate's model). The
 step the environment executes needs the chosen edge's model alone: :func:`chosen_model` takes the
-same sums directly over the edges that cross ``S_c``'s boundary, O(boundary). Finally
+same sums directly over the edges that cross ``S_c``'s boundary (:func:`boundary`),
+O(boundary). Finally
 ``g_c = s_c P_cᵀ g_ξ``, ``H_c = P_cᵀ H_ξ P_c``; positions are taken relative to the agent's vertex
 0 (the chosen edge's head in :func:`chosen_model`) to keep the products well conditioned. The
 candidate edge itself crosses ``S_c`` and contributes ``W_c²`` (``K_c P_c = I``). In the pose
@@ -183,28 +184,63 @@ def base_model(core: PGOCore) -> BaseModel:
     return BaseModel(gradient * keep, hessian * keep, step * keep, _local_f(r, tau, kappa))
 
 
-def chosen_model(core: PGOCore, edge: torch.Tensor, inside: torch.Tensor) -> BaseModel:
+class Boundary(NamedTuple):
+    """The edges that cross a moved subtree's boundary, per agent (``G`` agents, ``V+1`` vertex
+    and ``E+1`` edge slots): the only edges whose residual a subtree move changes.
+
+    Attributes:
+        crossing: ``(G, E+1)`` bool, the edge slot has exactly one endpoint in the subtree.
+        slots: ``(K,)`` the crossing slots' flat ids ``agent·(E+1) + slot``, ascending.
+        agent: ``(K,)`` the agent of each.
+        head_inside: ``(K,)`` bool, its head is the endpoint in the subtree.
+        tail_rows, head_rows: ``(K,)`` its endpoints' flat rows ``agent·(V+1) + vertex``.
+    """
+
+    crossing: torch.Tensor
+    slots: torch.Tensor
+    agent: torch.Tensor
+    head_inside: torch.Tensor
+    tail_rows: torch.Tensor
+    head_rows: torch.Tensor
+
+
+def boundary(core: PGOCore, inside: torch.Tensor) -> Boundary:
+    """The :class:`Boundary` of the vertices ``inside (G, V+1)`` (three comparisons per edge
+    slot, then O(crossing edges))."""
+    t = core.tensors
+    g = inside.shape[0]
+    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    head_in = torch.gather(inside, 1, heads)
+    crossing = torch.gather(inside, 1, tails) != head_in
+    slots = crossing.flatten().nonzero().squeeze(-1)
+    agent = slots // tails.shape[1]
+    offset = agent * inside.shape[1]
+    tail_rows = offset + tails.flatten()[slots]
+    head_rows = offset + heads.flatten()[slots]
+    return Boundary(crossing, slots, agent, head_in.flatten()[slots], tail_rows, head_rows)
+
+
+def chosen_model(core: PGOCore, edge: torch.Tensor, crossing: Boundary) -> BaseModel:
     """The model and Gauss–Newton step of one edge slot per agent, ``edge (G, 1)``, whose
-    correction moves the vertices ``inside (G, V+1)`` (:meth:`envs.core.PGOCore.subtree_members`):
-    the sums of the module docstring taken directly over the edges that cross the subtree's
-    boundary, with positions relative to the chosen edge's head (so ``m = 0``). Work: three
-    comparisons per edge slot to find the crossing edges, then O(crossing edges); the local F,
-    O(E). Fields as :class:`BaseModel` with the edge axis of length 1."""
-    gradient, hessian, step = _chosen(core, edge, inside, model=True)
+    correction moves a subtree with the boundary ``crossing`` (:func:`boundary`): the sums of the
+    module docstring taken directly over the crossing edges, with positions relative to the
+    chosen edge's head (so ``m = 0``), O(crossing edges); the local F, O(E). Fields as
+    :class:`BaseModel` with the edge axis of length 1."""
+    gradient, hessian, step = _chosen(core, edge, crossing, model=True)
     t = core.tensors
     g = edge.shape[0]
     r, tau, kappa = t["residuals"].view(g, -1, 3), t["tau"].view(g, -1), t["kappa"].view(g, -1)
     return BaseModel(gradient, hessian, step, _local_f(r, tau, kappa))
 
 
-def chosen_step(core: PGOCore, edge: torch.Tensor, inside: torch.Tensor) -> torch.Tensor:
+def chosen_step(core: PGOCore, edge: torch.Tensor, crossing: Boundary) -> torch.Tensor:
     """``(G, 1, 3)`` the Gauss–Newton step Δ_GN of :func:`chosen_model` alone (what the
     environment executes), without the model's whitening and the local F."""
-    return _chosen(core, edge, inside, model=False)[2]
+    return _chosen(core, edge, crossing, model=False)[2]
 
 
 def _chosen(
-    core: PGOCore, edge: torch.Tensor, inside: torch.Tensor, model: bool
+    core: PGOCore, edge: torch.Tensor, crossing: Boundary, model: bool
 ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
     """(gradient, hessian, step) of :func:`chosen_model`; gradient and Hessian None unless
     ``model``."""
@@ -212,23 +248,17 @@ def _chosen(
     g = edge.shape[0]
     poses = t["poses"].view(g, -1, 3)
     tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
-    tau, kappa = t["tau"].view(g, -1), t["kappa"].view(g, -1)
-    r = t["residuals"].view(g, -1, 3)
-    head_in = torch.gather(inside, 1, heads)
-    crossing = (torch.gather(inside, 1, tails) != head_in).flatten().nonzero().squeeze(-1)
-    agent = crossing // tails.shape[1]
-    tail, head = tails.flatten()[crossing], heads.flatten()[crossing]
+    slots, agent = crossing.slots, crossing.agent
     flat_poses = poses.reshape(-1, 3)
-    offset = agent * poses.shape[1]
-    x_tail, x_head = flat_poses[offset + tail], flat_poses[offset + head]
+    x_tail, x_head = flat_poses[crossing.tail_rows], flat_poses[crossing.head_rows]
     p, q = torch.gather(tails, 1, edge), torch.gather(heads, 1, edge)
     x_p, x_q = _gather_rows(poses, p).squeeze(1), _gather_rows(poses, q).squeeze(1)
     head_xy = x_head[:, :2] - x_q[agent, :2]
-    r_m = r.reshape(-1, 3)[crossing]
+    r = t["residuals"].view(-1, 3)[slots]
     u, h = _edge_terms(
-        x_tail[:, 2], head_xy, r_m, tau.flatten()[crossing], kappa.flatten()[crossing]
+        x_tail[:, 2], head_xy, r, t["tau"].view(-1)[slots], t["kappa"].view(-1)[slots]
     )
-    sigma = torch.where(head_in.flatten()[crossing], 1.0, -1.0).to(poses.dtype).unsqueeze(-1)
+    sigma = torch.where(crossing.head_inside, 1.0, -1.0).to(poses.dtype).unsqueeze(-1)
     sums = torch.zeros(g, 7, dtype=poses.dtype, device=poses.device)
     sums.index_add_(0, agent, torch.cat([sigma * u, h], -1))
     if core.correction == "subtree":

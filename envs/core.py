@@ -55,14 +55,9 @@ Horizon
     episode ends exactly when every local edge of every agent was processed once.
 
 Cost per step
-    Residuals, per-edge costs and ``L`` are updated incrementally: on the ``D`` edge slots incident
-    to the moved vertex (precomputed, padded incidence lists) in the pose mode, on the edges that
-    cross the moved subtree's boundary in the subtree mode (found by three comparisons per edge
-    slot; only they are evaluated). The subtree move computes and writes the moved rows only,
-    and the Gauss–Newton base step is the chosen edge's alone, from its boundary edges
-    (:func:`envs.basestep.chosen_model`). Building the full observation copies the O(V + E)
-    dynamic buffers (poses → node features, residuals, masks; with the base step every
-    candidate's model); :meth:`observation_update` names only what the step changed.
+    Only what the move changes is evaluated: the ``D`` edge slots at the moved vertex (pose mode)
+    or the edges crossing the moved subtree's boundary (:func:`envs.basestep.boundary`), the moved
+    rows, the chosen edge's base step. The full observation stays O(V + E) (docs/environment.md).
 """
 
 from __future__ import annotations
@@ -73,7 +68,15 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from envs.basestep import BaseModel, base_model, chosen_model, chosen_step, matrix_parts
+from envs.basestep import (
+    BaseModel,
+    Boundary,
+    base_model,
+    boundary,
+    chosen_model,
+    chosen_step,
+    matrix_parts,
+)
 from envs.geometry import (
     _gather_rows,
     _offset,
@@ -350,13 +353,15 @@ class PGOCore:
         head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
         inside = self.subtree_members(flat_edge)
+        crossing = boundary(self, inside)  # the same edges before and after the move
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            delta = delta + chosen_step(self, flat_edge, inside).view(b, n, 3)
+            delta = delta + chosen_step(self, flat_edge, crossing).view(b, n, 3)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t["loss"].clone()
         if self.correction == "subtree":
             self._move_subtree(poses, flat_edge, clipped, inside)
-            change, refreshed = self._refresh_boundary(inside)
+            change = self._refresh_boundary(crossing)
+            refreshed = crossing.crossing
         else:
             x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
             moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
@@ -391,17 +396,19 @@ class PGOCore:
     def chosen_base_model(self, edge: torch.Tensor) -> BaseModel:
         """The model of each agent's ``edge (B, n)`` alone (:func:`envs.basestep.chosen_model`:
         O(the edges crossing the moved subtree's boundary)), fields ``(B·n, 1, ...)``."""
-        g = self.batch * self.num_agents
-        flat_edge = edge.to(self.device, torch.int64).reshape(g, 1)
-        return chosen_model(self, flat_edge, self.subtree_members(flat_edge))
+        return chosen_model(self, *self._chosen_boundary(edge))
 
     def base_step(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` the Gauss–Newton step Δ_GN of each agent's ``edge (B, n)`` (0 off the
         tree), in the action's units (:func:`envs.basestep.chosen_step`)."""
-        g = self.batch * self.num_agents
-        flat_edge = edge.to(self.device, torch.int64).reshape(g, 1)
-        step = chosen_step(self, flat_edge, self.subtree_members(flat_edge))
+        step = chosen_step(self, *self._chosen_boundary(edge))
         return step.view(self.batch, self.num_agents, 3)
+
+    def _chosen_boundary(self, edge: torch.Tensor) -> tuple[torch.Tensor, Boundary]:
+        """The edge slots ``(B·n, 1)`` of ``edge (B, n)`` and the boundary of what a correction of
+        each would move, at the current state."""
+        flat_edge = edge.to(self.device, torch.int64).reshape(self.batch * self.num_agents, 1)
+        return flat_edge, boundary(self, self.subtree_members(flat_edge))
 
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
@@ -465,22 +472,14 @@ class PGOCore:
         flat = poses.view(-1, 3)
         flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
 
-    def _refresh_boundary(self, inside: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Recompute residuals and target costs of the edges with exactly one endpoint in the
-        moved subtree ``inside (G, V+1)`` (only those); return the change of ``L`` per agent,
-        ``(G,)``, and those edges, ``(G, E+1)`` bool."""
+    def _refresh_boundary(self, crossing: Boundary) -> torch.Tensor:
+        """Recompute residuals and target costs of the edges that cross the moved subtree's
+        boundary (only those, :func:`envs.basestep.boundary`); return the change of ``L`` per
+        agent, ``(G,)``."""
         t = self.tensors
-        g = inside.shape[0]
-        poses = t["poses"].view(g, -1, 3)
-        tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
-        crossing = torch.gather(inside, 1, tails) != torch.gather(inside, 1, heads)
-        slots = crossing.flatten().nonzero().squeeze(-1)
-        agent = slots // tails.shape[1]
-        flat_poses = poses.reshape(-1, 3)
-        offset = agent * poses.shape[1]
-        relative = between(
-            flat_poses[offset + tails.flatten()[slots]], flat_poses[offset + heads.flatten()[slots]]
-        )
+        slots = crossing.slots
+        flat_poses = t["poses"].view(-1, 3)
+        relative = between(flat_poses[crossing.tail_rows], flat_poses[crossing.head_rows])
         r = _offset(relative, t["measurements"].view(-1, 3)[slots])
         if self.reward_kind == "F":  # the targets are the measurements
             target_r = r
@@ -488,11 +487,11 @@ class PGOCore:
             target_r = _offset(relative, t["targets"].view(-1, 3)[slots])
         cost = edge_costs(target_r, t["kappa"].view(-1)[slots], t["tau"].view(-1)[slots])
         costs = t["costs"].view(-1)
-        change = torch.zeros(g, dtype=cost.dtype, device=self.device)
-        change.index_add_(0, agent, cost - costs[slots])
+        change = torch.zeros(crossing.crossing.shape[0], dtype=cost.dtype, device=self.device)
+        change.index_add_(0, crossing.agent, cost - costs[slots])
         t["residuals"].view(-1, 3)[slots] = r
         costs[slots] = cost
-        return change, crossing
+        return change
 
     def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:
         """Recompute residuals and target costs of the edge slots ``incident (G, D)`` in place;
