@@ -39,6 +39,10 @@ class PoseGraph:
         ground_truth: ``(N, 3)`` true poses, or ``None`` (real data).
         robots: ``(N,)`` int64 robot owning each vertex, or ``None`` (single robot).
         name: a label for reports (dataset name or file stem).
+        vertex_ids: ``(N,)`` uint64 id of each vertex as written in its file, or ``None`` (the
+            ids are ``0 … N−1``). Internal indices are always contiguous ``0 … N−1``.
+        fixed: ``(K,)`` int64 internal indices of the poses held fixed (g2o ``FIX`` lines), or
+            ``None`` (no ``FIX`` line: vertex 0 is the gauge).
     """
 
     poses: np.ndarray
@@ -50,6 +54,8 @@ class PoseGraph:
     ground_truth: np.ndarray | None = None
     robots: np.ndarray | None = None
     name: str = "graph"
+    vertex_ids: np.ndarray | None = None
+    fixed: np.ndarray | None = None
 
     @property
     def num_poses(self) -> int:
