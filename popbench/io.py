@@ -10,14 +10,18 @@ TORO ``EQUIV i j`` (as in Olson's ``w10000.graph``) declares vertices ``i`` and 
 same pose. They are merged, not tied by a tight edge: an infinitely stiff constraint is exactly
 the identification of the two variables, and a finite stand-in would only add a badly
 conditioned edge. Each class of equivalent ids (EQUIV lines chain) keeps its smallest id and that
-vertex's pose; the other vertices are removed, their edges are redirected to the kept vertex, the
-ids are renumbered contiguously in their original order, and an edge that ends up joining a
-vertex to itself is dropped (with a :class:`UserWarning` that counts them). Edge kinds are then
-labelled on the new ids (:func:`popbench.graph.single_robot_kinds`). :func:`read_vertices`
-applies the same merge, so a ground-truth file with the same EQUIV lines stays aligned.
+vertex's pose; the other vertices are removed, their edges are redirected to the kept vertex,
+and an edge that ends up joining a vertex to itself is dropped (with a :class:`ReadWarning` that
+counts them). :func:`read_vertices` applies the same merge, so a ground-truth file with the same
+EQUIV lines stays aligned.
 
-Edges written ``i > j`` are kept as written. Files without VERTEX lines get the odometry
-composition of their edges (:func:`popbench.graph.odometry_composition`).
+Vertex ids are any integers ``0 … 2⁶⁴−1`` (GTSAM keys), in any order, with gaps: internal
+indices ``0 … N−1`` follow the ascending ids (so edge kinds, :func:`popbench.graph.
+single_robot_kinds`, see consecutive ids), ``PoseGraph.vertex_ids`` keeps the ids and every
+writer writes them back. ``FIX id…`` lines give ``PoseGraph.fixed``; lines of other tags are
+skipped and counted (:class:`ReadWarning`). Edges written ``i > j`` are kept as
+written. Files without VERTEX lines get the odometry composition of their edges
+(:func:`popbench.graph.odometry_composition`).
 """
 
 from __future__ import annotations
@@ -47,7 +51,15 @@ _FORMATS = {
 # Upper-triangle (row, col) of each of the six information numbers, per format.
 _G2O_ENTRIES = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
 _TORO_ENTRIES = [(0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2)]
-_IGNORED_TAGS = {"FIX", "FIX2", "PARAMS_SE2OFFSET", "VERTEX_XY", "EDGE_SE2_XY"}
+# The pose-graph tags of each format: one of them in a file of the other format is refused
+# (a mixed file), never skipped.
+_FORMAT_OF_TAG = {"VERTEX_SE2": "g2o", "EDGE_SE2": "g2o", "VERTEX2": "toro", "EDGE2": "toro"}
+
+
+class ReadWarning(UserWarning):
+    """What reading a file left out, in one line: lines of kinds popbench does not model
+    (landmarks, 3D, any other tag; each tag with its count), or edges that a TORO EQUIV merge
+    made self-loops. ``popbench solve`` prints each on stderr."""
 
 
 def detect_format(path: Path) -> str:
@@ -80,17 +92,38 @@ _FIELDS = {
 }
 # TORO: ``EQUIV i j`` declares vertices i and j the same pose (merged on reading).
 _EQUIV_TAG = "EQUIV"
-MAX_VERTEX_ID = 2**31 - 1
+# g2o: ``FIX id…`` holds those poses fixed (also read in TORO files, where popbench writes it).
+_FIX_TAG = "FIX"
+# Vertex ids are unsigned 64-bit integers written in decimal digits (GTSAM keys, ``Symbol``s).
+MAX_VERTEX_ID = 2**64 - 1
 
 
-def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: str) -> list[float]:
+def _parse_id(path: Path, lineno: int, tag: str, field: str, token: str) -> int:
+    """The vertex id ``token`` of field ``field`` as an exact int in ``0 … MAX_VERTEX_ID``."""
+    where = f"{tag} field {field}: vertex id {token!r}"
+    if not (token.isascii() and token.isdigit()):
+        message = f"{where} is not an integer ≥ 0 written in decimal digits"
+        raise DataFormatError(path, lineno, message)
+    value = int(token)
+    if value > MAX_VERTEX_ID:
+        message = f"{where} is out of range (0 to {MAX_VERTEX_ID}, 64 bits)"
+        raise DataFormatError(path, lineno, message)
+    return value
+
+
+def _parse_line(
+    path: Path, lineno: int, tokens: list[str], count: int, tag: str
+) -> tuple[list[int], list[float]]:
+    """The vertex ids (exact) and the numbers of a VERTEX, EDGE or EQUIV line of ``count``
+    tokens, the tag included."""
     if len(tokens) != count:
         raise DataFormatError(
             path, lineno, f"{tag} needs {count - 1} values after the tag, found {len(tokens) - 1}"
         )
     fields = _FIELDS[tag]
+    id_count = 1 if tag.startswith("VERTEX") else 2
     values = []
-    for k, token in enumerate(tokens[1:]):
+    for k, token in enumerate(tokens[1 + id_count :], start=id_count):
         try:
             value = float(token)
         except ValueError:
@@ -100,45 +133,47 @@ def _parse_numbers(path: Path, lineno: int, tokens: list[str], count: int, tag: 
             message = f"{tag} field {fields[k]} (value {k + 1} of {count - 1}) is non-finite"
             raise DataFormatError(path, lineno, f"{message} ({token!r})")
         values.append(value)
-    ids = (0,) if tag.startswith("VERTEX") else (0, 1)
-    for k in ids:
-        if values[k] != int(values[k]) or values[k] < 0:
-            message = f"{tag}: vertex id {tokens[k + 1]!r} is not an integer ≥ 0"
-            raise DataFormatError(path, lineno, message)
-        if values[k] > MAX_VERTEX_ID:
-            allowed = f"0 to {MAX_VERTEX_ID}"
-            message = f"{tag}: vertex id {tokens[k + 1]!r} is out of range ({allowed})"
-            raise DataFormatError(path, lineno, message)
-    if len(ids) == 2 and values[0] == values[1]:
+    ids = [
+        _parse_id(path, lineno, tag, field, token)
+        for field, token in zip(fields, tokens[1 : 1 + id_count], strict=False)
+    ]
+    if id_count == 2 and ids[0] == ids[1]:
         why = (
             "an EQUIV line names two different vertices"
             if tag == _EQUIV_TAG
             else ("pose-graph edges join two different poses")
         )
-        message = f"{tag} joins vertex {int(values[0])} to itself ({why})"
+        message = f"{tag} joins vertex {ids[0]} to itself ({why})"
         raise DataFormatError(path, lineno, message)
-    return values
+    return ids, values
 
 
 class _Lines(NamedTuple):
-    """The parsed VERTEX and EDGE lines of one file, with their line numbers."""
+    """The parsed lines of one file, with their 1-based line numbers; ids exact, as written."""
 
-    vertices: np.ndarray  # (V, 4) id, x, y, θ
-    vertex_lines: np.ndarray  # (V,) 1-based line numbers
-    edges: np.ndarray  # (E, 11) i, j, dx, dy, dθ, six information numbers
+    vertex_ids: np.ndarray  # (V,) uint64
+    vertices: np.ndarray  # (V, 3) x, y, θ
+    vertex_lines: np.ndarray  # (V,)
+    edge_ids: np.ndarray  # (E, 2) uint64 i, j
+    edges: np.ndarray  # (E, 9) dx, dy, dθ, six information numbers
     edge_lines: np.ndarray  # (E,)
-    equivs: np.ndarray  # (Q, 2) int64 i, j of the TORO EQUIV lines
+    equivs: np.ndarray  # (Q, 2) uint64 i, j of the TORO EQUIV lines
     equiv_lines: np.ndarray  # (Q,)
+    fixes: np.ndarray  # (K,) uint64 ids of the FIX lines (a line may name several)
+    fix_lines: np.ndarray  # (K,)
+    skipped: dict[str, int]  # tag → count of the lines of kinds popbench does not model
 
 
 def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
     vertex_tag, edge_tag = _FORMATS[fmt]
-    vertices: list[list[float]] = []
-    vertex_lines: list[int] = []
-    edges: list[list[float]] = []
-    edge_lines: list[int] = []
-    equivs: list[list[float]] = []
-    equiv_lines: list[int] = []
+    # tag → (kind, tokens per line); EQUIV is a TORO tag only.
+    kinds = {vertex_tag: ("vertex", 5), edge_tag: ("edge", 12)}
+    if fmt == "toro":
+        kinds[_EQUIV_TAG] = ("equiv", 3)
+    ids: dict[str, list[list[int]]] = {"vertex": [], "edge": [], "equiv": [], "fix": []}
+    numbers: dict[str, list[list[float]]] = {"vertex": [], "edge": [], "equiv": []}
+    line_numbers: dict[str, list[int]] = {"vertex": [], "edge": [], "equiv": [], "fix": []}
+    skipped: dict[str, int] = {}
     lineno = 0
     try:
         with path.open(encoding="utf-8") as handle:
@@ -147,52 +182,113 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
                 if not tokens or tokens[0].startswith("#"):
                     continue
                 tag = tokens[0]
-                if tag == vertex_tag:
-                    vertices.append(_parse_numbers(path, lineno, tokens, 5, tag))
-                    vertex_lines.append(lineno)
-                elif tag == edge_tag:
-                    if parse_edges:
-                        edges.append(_parse_numbers(path, lineno, tokens, 12, tag))
-                    edge_lines.append(lineno)
-                elif tag == _EQUIV_TAG and fmt == "toro":
-                    equivs.append(_parse_numbers(path, lineno, tokens, 3, tag))
-                    equiv_lines.append(lineno)
-                elif tag not in _IGNORED_TAGS:
+                if tag in kinds:
+                    kind, count = kinds[tag]
+                    if kind != "edge" or parse_edges:
+                        line_ids, values = _parse_line(path, lineno, tokens, count, tag)
+                        ids[kind].append(line_ids)
+                        numbers[kind].append(values)
+                    line_numbers[kind].append(lineno)
+                elif tag == _FIX_TAG:
+                    if len(tokens) < 2:
+                        raise DataFormatError(path, lineno, "FIX needs at least one vertex id")
+                    ids["fix"].extend([_parse_id(path, lineno, tag, "id", t)] for t in tokens[1:])
+                    line_numbers["fix"].extend([lineno] * (len(tokens) - 1))
+                elif tag in _FORMAT_OF_TAG or tag == _EQUIV_TAG:
+                    other = _FORMAT_OF_TAG.get(tag, "toro")
                     raise DataFormatError(
-                        path, lineno, f"unknown tag {tag!r} (expected {vertex_tag} or {edge_tag})"
+                        path,
+                        lineno,
+                        f"unknown tag {tag!r} in a {fmt} file ({tag} is a {other} tag; expected "
+                        f"{vertex_tag} or {edge_tag}: one format per file, detected from a "
+                        ".graph suffix or the first VERTEX/EDGE tag)",
                     )
+                else:
+                    skipped[tag] = skipped.get(tag, 0) + 1
     except UnicodeDecodeError:
         raise DataFormatError(path, lineno + 1, "not a text file") from None
+
+    def exact(kind: str, width: int) -> np.ndarray:
+        return np.asarray(ids[kind], dtype=np.uint64).reshape(-1, width)
+
+    def real(kind: str, width: int) -> np.ndarray:
+        return np.asarray(numbers[kind], dtype=np.float64).reshape(-1, width)
+
+    def where(kind: str) -> np.ndarray:
+        return np.asarray(line_numbers[kind], dtype=np.int64)
+
     return _Lines(
-        np.asarray(vertices, dtype=np.float64).reshape(-1, 4),
-        np.asarray(vertex_lines, dtype=np.int64),
-        np.asarray(edges, dtype=np.float64).reshape(-1, 11),
-        np.asarray(edge_lines, dtype=np.int64),
-        np.asarray(equivs, dtype=np.float64).reshape(-1, 2).astype(np.int64),
-        np.asarray(equiv_lines, dtype=np.int64),
+        exact("vertex", 1)[:, 0],
+        real("vertex", 3),
+        where("vertex"),
+        exact("edge", 2),
+        real("edge", 9),
+        where("edge"),
+        exact("equiv", 2),
+        where("equiv"),
+        exact("fix", 1)[:, 0],
+        where("fix"),
+        skipped,
     )
 
 
-def _equivalence_map(path: Path, lines: _Lines, num_poses: int) -> np.ndarray | None:
-    """``(num_poses,)`` new id of each original vertex after merging the EQUIV classes (each
-    class kept as its smallest id, survivors renumbered 0 … in their original order), or
-    ``None`` when the file has no EQUIV lines.
+def _id_range(ids: np.ndarray) -> str:
+    """``"ids 0–5"`` for ascending ``ids`` without gaps, else ``"6 ids from 1 to 40"``."""
+    first, last = int(ids[0]), int(ids[-1])
+    return (
+        f"ids {first}–{last}"
+        if last - first + 1 == ids.size
+        else (f"{ids.size} ids from {first} to {last}")
+    )
+
+
+def _vertex_table(path: Path, lines: _Lines) -> tuple[np.ndarray, np.ndarray | None]:
+    """The graph's vertex ids, ascending ``(N,)`` uint64, and their ``(N, 3)`` poses: those of
+    the VERTEX lines (an id repeated is refused), or, in a file without VERTEX lines, every id
+    that an edge names (poses None). Internal index ``k`` is the vertex with the ``k``-th
+    smallest id."""
+    if not lines.vertex_ids.size:
+        return np.unique(lines.edge_ids), None
+    order = np.argsort(lines.vertex_ids, kind="stable")
+    ids = lines.vertex_ids[order]
+    repeated = np.flatnonzero(ids[1:] == ids[:-1])
+    if repeated.size:
+        k = order[repeated[0] + 1]
+        message = f"vertex id {lines.vertex_ids[k]} repeated"
+        raise DataFormatError(path, int(lines.vertex_lines[k]), message)
+    poses = lines.vertices[order]
+    poses[:, 2] = _wrap_out_of_range(poses[:, 2])
+    return ids, poses
+
+
+def _indices(
+    path: Path, tag: str, missing: str, ids: np.ndarray, wanted: np.ndarray, line_numbers
+) -> np.ndarray:
+    """The internal indices (int64, the shape of ``wanted``) of the file ids ``wanted`` among
+    the ascending vertex ``ids``; a DataFormatError on the line of the first (in file order)
+    that is not a vertex, naming it and ending in ``missing`` (why it is not)."""
+    slots = np.searchsorted(ids, wanted)
+    found = ids[np.minimum(slots, ids.size - 1)] == wanted
+    if not found.all():
+        where = tuple(np.argwhere(~found)[0])
+        message = f"{tag} references vertex {wanted[where]}, {missing} ({_id_range(ids)})"
+        raise DataFormatError(path, int(line_numbers[where[0]]), message)
+    return slots.astype(np.int64)
+
+
+def _equivalence_map(path: Path, lines: _Lines, ids: np.ndarray) -> np.ndarray | None:
+    """``(N,)`` new internal index of each vertex after merging the EQUIV classes (each class
+    kept as its smallest id, survivors renumbered 0 … in ascending id order), or ``None`` when
+    the file has no EQUIV lines.
 
     Raises:
-        DataFormatError: an EQUIV line naming a vertex id ≥ ``num_poses``.
+        DataFormatError: an EQUIV line naming an id that is not a vertex of the graph.
     """
     if not lines.equivs.size:
         return None
-    bad = np.flatnonzero(lines.equivs.max(axis=1) >= num_poses)
-    if bad.size:
-        k = int(bad[0])
-        vertex = int(lines.equivs[k].max())
-        raise DataFormatError(
-            path,
-            int(lines.equiv_lines[k]),
-            f"EQUIV references vertex {vertex}, which is not in the graph (ids 0–{num_poses - 1})",
-        )
-    root = np.arange(num_poses)
+    missing = "which is not in the graph"
+    equivs = _indices(path, _EQUIV_TAG, missing, ids, lines.equivs, lines.equiv_lines)
+    root = np.arange(ids.size)
 
     def find(v: int) -> int:
         while root[v] != v:
@@ -200,7 +296,7 @@ def _equivalence_map(path: Path, lines: _Lines, num_poses: int) -> np.ndarray | 
             v = int(root[v])
         return v
 
-    for i, j in lines.equivs:  # one step per EQUIV line, at parse time
+    for i, j in equivs:  # one step per EQUIV line, at parse time
         a, b = find(int(i)), find(int(j))
         root[max(a, b)] = min(a, b)
     while True:  # flatten every chain to its root, vectorised
@@ -208,165 +304,144 @@ def _equivalence_map(path: Path, lines: _Lines, num_poses: int) -> np.ndarray | 
         if np.array_equal(parent, root):
             break
         root = parent
-    kept = root == np.arange(num_poses)
+    kept = root == np.arange(ids.size)
     new_id = np.cumsum(kept) - 1
     return new_id[root]
 
 
-def _vertex_poses(path: Path, lines: _Lines) -> np.ndarray:
-    """``(V, 3)`` poses from the ``V`` VERTEX lines, whose ids must be exactly 0 … V − 1."""
-    ids = lines.vertices[:, 0].astype(np.int64)
-    order = np.argsort(ids, kind="stable")
-    repeated = np.flatnonzero(np.diff(ids[order]) == 0)
-    if repeated.size:
-        k = order[repeated[0] + 1]
-        raise DataFormatError(path, int(lines.vertex_lines[k]), f"vertex id {ids[k]} repeated")
-    num_poses = ids.size
-    beyond = np.flatnonzero(ids >= num_poses)  # unique ids: some id below V is then missing
-    if beyond.size:
-        k = int(beyond[0])
-        missing = np.setdiff1d(np.arange(num_poses), ids)
-        raise DataFormatError(
-            path,
-            int(lines.vertex_lines[k]),
-            f"vertex ids must be contiguous from 0: no VERTEX line for id {int(missing[0])} "
-            f"({missing.size} of 0–{num_poses - 1} missing) but one for id {ids[k]}",
-        )
-    poses = np.zeros((num_poses, 3))
-    poses[ids] = lines.vertices[:, 1:4]
-    poses[:, 2] = _wrap_out_of_range(poses[:, 2])
-    return poses
-
-
-def _check_edge_ids(
-    path: Path, tag: str, lines: _Lines, tails: np.ndarray, heads: np.ndarray
-) -> None:
-    """Every edge endpoint must have a VERTEX line (ids 0 … V − 1); in a file without VERTEX
-    lines every id from 0 to the largest must be an endpoint of some edge (else that pose would
-    be undefined)."""
-    if lines.vertices.size:
-        num_poses = lines.vertices.shape[0]
-        reason = f"which has no VERTEX line (ids 0–{num_poses - 1})"
-    else:
-        used = np.unique(np.concatenate([tails, heads]))
-        num_poses = used.size  # ids 0 … max all used ⟺ max < number of distinct ids
-        if int(used[-1]) < num_poses:
-            return
-        gap = int(np.setdiff1d(np.arange(num_poses), used)[0])
-        reason = (
-            f"but no edge references vertex {gap} and the file has no VERTEX lines, "
-            "so that pose would be undefined"
-        )
-    bad = np.flatnonzero((tails >= num_poses) | (heads >= num_poses))
-    if bad.size:
-        k = int(bad[0])
-        vertex = int(tails[k] if tails[k] >= num_poses else heads[k])
-        raise DataFormatError(
-            path, int(lines.edge_lines[k]), f"{tag} references vertex {vertex}, {reason}"
-        )
+def _kept(rows: np.ndarray, new_id: np.ndarray) -> np.ndarray:
+    """The rows of the kept vertices after a merge: each merged class takes the row (pose, id)
+    of its kept (smallest) id, the first vertex mapped to each new index."""
+    _, first = np.unique(new_id, return_index=True)
+    return rows[first]
 
 
 def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     """Read a g2o or TORO file (format from the suffix or the first tag).
 
+    Vertex ids may be any integers ``0 … 2⁶⁴−1`` in any order, with gaps: the graph's internal
+    indices ``0 … N−1`` follow the ids in ascending order and ``PoseGraph.vertex_ids`` keeps the
+    ids as written (``None`` when they are ``0 … N−1``). ``FIX id…`` lines give
+    ``PoseGraph.fixed``. Lines of other tags are skipped with one :class:`ReadWarning` that
+    counts them per tag (docs/io.md).
+
     Raises:
         FileNotFoundError: no such file.
-        DataFormatError: a malformed line (``file:line: reason``), an unknown tag, no edges,
-            non-contiguous vertex ids, an information matrix that is not positive definite, or
-            poses that no path of edges joins to vertex 0 (:func:`_check_connected`).
+        DataFormatError: a malformed line (``file:line: reason``), a tag of the other format,
+            no edges, a repeated vertex id, an edge, FIX or EQUIV line naming an id that is not a
+            vertex, an information matrix that is not positive definite, or poses that no path
+            of edges joins to the vertex of the smallest id (:func:`_check_connected`).
     """
     path = Path(path)
     fmt = detect_format(path)
+    vertex_tag, edge_tag = _FORMATS[fmt]
     lines = _scan(path, fmt)
     if not lines.edges.size:
-        raise DataFormatError(path, 0, f"no {_FORMATS[fmt][1]} lines: not a {fmt} pose graph")
-    tails = lines.edges[:, 0].astype(np.int64)
-    heads = lines.edges[:, 1].astype(np.int64)
-    measurements = lines.edges[:, 2:5].copy()
+        raise DataFormatError(path, 0, f"no {edge_tag} lines: not a {fmt} pose graph")
+    measurements = lines.edges[:, :3].copy()
     measurements[:, 2] = _wrap_out_of_range(measurements[:, 2])
     with np.errstate(over="ignore", invalid="ignore"):  # overflow: refused just below
-        information = _information(lines.edges[:, 5:], fmt, measurements[:, 2])
+        information = _information(lines.edges[:, 3:], fmt, measurements[:, 2])
     _check_information(path, information, lines.edge_lines)
     _check_coordinates(path, lines)
 
-    _check_edge_ids(path, _FORMATS[fmt][1], lines, tails, heads)
-    poses = _vertex_poses(path, lines) if lines.vertices.size else None
-    num_poses = len(poses) if poses is not None else int(max(tails.max(), heads.max())) + 1
-    new_id = _equivalence_map(path, lines, num_poses)
+    ids, poses = _vertex_table(path, lines)
+    missing = f"which has no {vertex_tag} line"
+    ends = _indices(path, edge_tag, missing, ids, lines.edge_ids, lines.edge_lines)
+    tails, heads = ends[:, 0], ends[:, 1]
+    missing = "which is not in the graph"
+    fixed = _indices(path, _FIX_TAG, missing, ids, lines.fixes, lines.fix_lines)
+    new_id = _equivalence_map(path, lines, ids)
     if new_id is not None:
-        tails, heads = new_id[tails], new_id[heads]
+        tails, heads, fixed = new_id[tails], new_id[heads], new_id[fixed]
+        ids = _kept(ids, new_id)
         if poses is not None:
-            poses = _merged_poses(poses, new_id)
-        num_poses = int(new_id.max()) + 1
+            poses = _kept(poses, new_id)
         loops = tails == heads
         if loops.any():
             warnings.warn(
                 f"{path}: EQUIV merged {lines.equivs.shape[0]} vertex pair(s); dropped "
                 f"{int(loops.sum())} edge(s) that joined equivalent vertices (self-loops)",
+                ReadWarning,
                 stacklevel=2,
             )
             keep = ~loops
             tails, heads = tails[keep], heads[keep]
             measurements, information = measurements[keep], information[keep]
-    _check_connected(path, lines, num_poses, tails, heads, new_id)
+    _check_connected(path, lines, ids, tails, heads)
     if poses is None:
-        poses = odometry_composition(num_poses, tails, heads, measurements)
-    return make_graph(poses, tails, heads, measurements, information, name=name or path.stem)
+        poses = odometry_composition(ids.size, tails, heads, measurements)
+    _warn_skipped(path, lines.skipped, fmt)
+    return make_graph(
+        poses,
+        tails,
+        heads,
+        measurements,
+        information,
+        name=name or path.stem,
+        vertex_ids=None if int(ids[-1]) == ids.size - 1 else ids,
+        fixed=np.unique(fixed) if fixed.size else None,
+    )
+
+
+def _warn_skipped(path: Path, skipped: dict[str, int], fmt: str) -> None:
+    """One :class:`ReadWarning` naming each skipped tag with its count."""
+    if not skipped:
+        return
+    counts = ", ".join(
+        f"{tag if tag.isprintable() else repr(tag)} ×{count}" for tag, count in skipped.items()
+    )
+    read = " ".join([*_FORMATS[fmt], _FIX_TAG] + ([_EQUIV_TAG] if fmt == "toro" else []))
+    warnings.warn(
+        f"{path}: skipped {sum(skipped.values())} line(s) of kinds popbench does not model "
+        f"({counts}); it reads {read} (see docs/io.md)",
+        ReadWarning,
+        stacklevel=3,
+    )
 
 
 def _check_connected(
-    path: Path,
-    lines: _Lines,
-    num_poses: int,
-    tails: np.ndarray,
-    heads: np.ndarray,
-    new_id: np.ndarray | None,
+    path: Path, lines: _Lines, ids: np.ndarray, tails: np.ndarray, heads: np.ndarray
 ) -> None:
-    """Every pose must be joined to vertex 0 by a path of edges (one gauge fixes the whole
-    graph; a pose in another component is undetermined and makes every solver's system
-    singular). The error names the first few unconnected poses by their ids in the file and the
-    line of the first one's VERTEX line (or of its first edge, without VERTEX lines)."""
-    unconnected = unconnected_vertices(num_poses, tails, heads)
+    """Every pose must be joined to the vertex of the smallest id (internal index 0) by a path
+    of edges (one gauge fixes the whole graph; a pose in another component is undetermined and
+    makes every solver's system singular). The error names the first few unconnected poses by
+    their ids in the file (``ids``, ``(N,)``, after any EQUIV merge) and the line of the first
+    one's VERTEX line (or of its first edge, without VERTEX lines)."""
+    unconnected = ids[unconnected_vertices(ids.size, tails, heads)]
     if not unconnected.size:
         return
-    if new_id is not None:  # back to the file's ids: each merged class's kept (smallest) id
-        unconnected = np.unique(new_id, return_index=True)[1][unconnected]
-    first = int(unconnected[0])
-    if lines.vertices.size:
-        line = lines.vertex_lines[np.flatnonzero(lines.vertices[:, 0] == first)[0]]
+    first = unconnected[0]
+    if lines.vertex_ids.size:
+        line = lines.vertex_lines[np.flatnonzero(lines.vertex_ids == first)[0]]
     else:
-        line = lines.edge_lines[np.flatnonzero((lines.edges[:, :2] == first).any(axis=1))[0]]
+        line = lines.edge_lines[np.flatnonzero((lines.edge_ids == first).any(axis=1))[0]]
     shown = ", ".join(map(str, unconnected[:5].tolist())) + (", …" if unconnected.size > 5 else "")
     raise DataFormatError(
         path,
         int(line),
-        f"{unconnected.size} of {num_poses} poses (ids {shown}) are not connected to vertex 0 "
-        "by any path of edges, so the graph has no single gauge: remove them or add edges",
+        f"{unconnected.size} of {ids.size} poses (ids {shown}) are not connected to vertex "
+        f"{ids[0]} by any path of edges, so the graph has no single gauge: remove them or add "
+        "edges",
     )
 
 
 def read_vertices(path: str | Path) -> np.ndarray:
-    """Only the VERTEX lines of a g2o/TORO file as ``(N, 3)`` poses (e.g. a ground-truth file);
-    edge lines are skipped unparsed.
+    """Only the VERTEX lines of a g2o/TORO file as ``(N, 3)`` poses in ascending id order, the
+    order :func:`read_graph` gives the same ids (e.g. a ground-truth file); edge lines are
+    skipped unparsed.
 
     Raises:
-        DataFormatError: no VERTEX lines, a malformed one, or ids not contiguous from 0.
+        DataFormatError: no VERTEX lines, a malformed one, or a repeated id.
     """
     path = Path(path)
     fmt = detect_format(path)
     lines = _scan(path, fmt, parse_edges=False)
     if not lines.vertices.size:
         raise DataFormatError(path, 0, f"no {_FORMATS[fmt][0]} lines")
-    poses = _vertex_poses(path, lines)
-    new_id = _equivalence_map(path, lines, len(poses))
-    return poses if new_id is None else _merged_poses(poses, new_id)
-
-
-def _merged_poses(poses: np.ndarray, new_id: np.ndarray) -> np.ndarray:
-    """The ``(N', 3)`` poses of the kept vertices: each merged class takes the pose of its kept
-    (smallest) id, which is the first original vertex mapped to each new id."""
-    _, first = np.unique(new_id, return_index=True)
-    return poses[first]
+    ids, poses = _vertex_table(path, lines)
+    new_id = _equivalence_map(path, lines, ids)
+    return poses if new_id is None else _kept(poses, new_id)
 
 
 def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:
@@ -393,8 +468,8 @@ INFORMATION_SPREAD = 1e15  # largest / smallest eigenvalue over the whole graph
 def _check_coordinates(path: Path, lines: _Lines) -> None:
     """Every translation (VERTEX x, y; edge dx, dy) within ``±COORDINATE_LIMIT`` metres."""
     for rows, columns, numbers, what in (
-        (lines.vertices, [1, 2], lines.vertex_lines, "pose coordinate"),
-        (lines.edges, [2, 3], lines.edge_lines, "measured translation"),
+        (lines.vertices, [0, 1], lines.vertex_lines, "pose coordinate"),
+        (lines.edges, [0, 1], lines.edge_lines, "measured translation"),
     ):
         bad = np.flatnonzero((np.abs(rows[:, columns]) > COORDINATE_LIMIT).any(axis=1))
         if bad.size:
@@ -457,35 +532,66 @@ def _savetxt(handle, rows: np.ndarray, fmt: list[str] | str, delimiter: str = " 
         np.savetxt(handle, rows, fmt=fmt, delimiter=delimiter)
 
 
+def _rows(*columns: np.ndarray) -> np.ndarray:
+    """``(R, C)`` object array of ``columns`` (each ``(R,)`` or ``(R, k)``), so that ids stay
+    exact uint64 integers next to float64 numbers when :func:`_savetxt` formats them."""
+    blocks = [np.asarray(column).reshape(len(column), -1) for column in columns]
+    table = np.empty((len(columns[0]), sum(block.shape[1] for block in blocks)), dtype=object)
+    start = 0
+    for block in blocks:
+        table[:, start : start + block.shape[1]] = block
+        start += block.shape[1]
+    return table
+
+
+def file_ids(graph: PoseGraph) -> np.ndarray:
+    """``(N,)`` uint64 id of each vertex as its file wrote it (``0 … N−1`` for a graph without
+    ``vertex_ids``)."""
+    if graph.vertex_ids is None:
+        return np.arange(graph.num_poses, dtype=np.uint64)
+    return np.asarray(graph.vertex_ids, dtype=np.uint64)
+
+
+def _write_graph(
+    graph: PoseGraph, path: str | Path, poses: np.ndarray, tags: tuple[str, str], entries
+) -> None:
+    """VERTEX lines (the file's ids, ``poses``), EDGE lines (the ids of their ends, the
+    measurement, the six ``entries`` ``(M, 6)``), then one ``FIX id`` line per fixed pose:
+    last, because GTSAM's ``readG2o`` stops reading at a tag it does not know (gtsam 4.3: the
+    edges after a FIX line were lost), while g2o and popbench read FIX anywhere."""
+    ids = file_ids(graph)
+    vertex_tag, edge_tag = tags
+    with Path(path).open("w") as handle:
+        _savetxt(handle, _rows(ids, poses), [f"{vertex_tag} %d"] + ["%.17g"] * 3)
+        edges = _rows(ids[graph.tails], ids[graph.heads], graph.measurements, entries)
+        _savetxt(handle, edges, [f"{edge_tag} %d", "%d"] + ["%.17g"] * 9)
+        if graph.fixed is not None:
+            _savetxt(handle, _rows(ids[graph.fixed]), f"{_FIX_TAG} %d")
+
+
 def write_g2o(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = None) -> None:
-    """Write ``graph`` (with ``poses`` as the VERTEX lines, default the graph's) as g2o."""
-    poses = graph.poses if poses is None else poses
+    """Write ``graph`` (with ``poses`` as the VERTEX lines, default the graph's) as g2o, with
+    the file's own vertex ids (:func:`file_ids`) and its FIX lines."""
     rows, cols = zip(*_G2O_ENTRIES, strict=True)
     upper = graph.information[:, list(rows), list(cols)]
-    vertex_block = np.column_stack([np.arange(graph.num_poses), poses])
-    edge_block = np.column_stack([graph.tails, graph.heads, graph.measurements, upper])
-    with Path(path).open("w") as handle:
-        _savetxt(handle, vertex_block, ["VERTEX_SE2 %d"] + ["%.17g"] * 3)
-        _savetxt(handle, edge_block, ["EDGE_SE2 %d", "%d"] + ["%.17g"] * 9)
+    poses = graph.poses if poses is None else poses
+    _write_graph(graph, path, poses, _FORMATS["g2o"], upper)
 
 
 def write_toro(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = None) -> None:
     """Write ``graph`` (with ``poses`` as the VERTEX2 lines, default the graph's) as TORO: the
     information is rotated back into TORO's frame, ``Λ_TORO = B Λ_g2o Bᵀ`` with
     ``B = blkdiag(R(θ̃), 1)`` (the inverse of the reader's conversion), so the file reads back to
-    the same graph up to rounding (≈ 1e-16 relative in Λ)."""
-    poses = graph.poses if poses is None else poses
+    the same graph up to rounding (≈ 1e-16 relative in Λ). Ids and FIX lines as
+    :func:`write_g2o` (TORO has no FIX tag; popbench reads it back)."""
     b = np.zeros_like(graph.information)
     b[:, :2, :2] = se2.rotation(graph.measurements[:, 2])
     b[:, 2, 2] = 1.0
     toro = b @ graph.information @ np.swapaxes(b, 1, 2)
     rows, cols = zip(*_TORO_ENTRIES, strict=True)
     entries = toro[:, list(rows), list(cols)]
-    vertex_block = np.column_stack([np.arange(graph.num_poses), poses])
-    edge_block = np.column_stack([graph.tails, graph.heads, graph.measurements, entries])
-    with Path(path).open("w") as handle:
-        _savetxt(handle, vertex_block, ["VERTEX2 %d"] + ["%.17g"] * 3)
-        _savetxt(handle, edge_block, ["EDGE2 %d", "%d"] + ["%.17g"] * 9)
+    poses = graph.poses if poses is None else poses
+    _write_graph(graph, path, poses, _FORMATS["toro"], entries)
 
 
 # Suffix of an output graph file → its writer (the reader detects the same suffixes).
@@ -497,8 +603,9 @@ def write_solution(graph: PoseGraph, poses: np.ndarray, path: str | Path) -> Non
     its VERTEX lines: g2o for a ``.g2o`` path, TORO for ``.graph``. Edges are written as the
     graph holds them (a file read by :func:`read_graph` written back reads to the same
     measurements and information, so the file's ``F`` at its own VERTEX poses is the
-    solution's). A graph read from a TORO file with EQUIV lines is written merged (its
-    renumbered ids, no EQUIV lines; see docs/io.md).
+    solution's). Vertex ids are the file's own (:func:`file_ids`), FIX lines are written
+    back. A graph read from a TORO file with EQUIV lines is written merged (one vertex per
+    class, with the class's smallest id; no EQUIV lines; see docs/io.md).
 
     Raises:
         ValueRangeError: another suffix, or ``poses`` not ``(N, 3)``.
@@ -526,16 +633,25 @@ def _checked_poses(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
 def write_tum(poses: np.ndarray, path: str | Path, ids: np.ndarray | None = None) -> None:
     """Write ``poses`` ``(N, 3)`` ``(x [m], y [m], θ [rad])`` as a TUM trajectory (what ``evo``
     reads): one line ``timestamp x y z qx qy qz qw`` per pose, the timestamp the vertex id
-    (``ids``, default ``0 … N−1``), ``z = 0`` and the unit quaternion of the yaw,
-    ``(0, 0, sin θ/2, cos θ/2)``."""
+    (``ids`` ``(N,)``, default ``0 … N−1``) in exact decimal digits, ``z = 0`` and the unit
+    quaternion of the yaw, ``(0, 0, sin θ/2, cos θ/2)``. A reader that parses the timestamp as
+    a float64 (evo) reads ids up to 2⁵³ exactly and rounds larger ones (:func:`tum_rounded`)."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    ids = np.arange(poses.shape[0]) if ids is None else np.asarray(ids)
+    ids = np.arange(poses.shape[0], dtype=np.uint64) if ids is None else np.asarray(ids)
     half = poses[:, 2] / 2.0
-    zeros = np.zeros(poses.shape[0])
-    rows = np.column_stack([ids, poses[:, :2], zeros, zeros, zeros, np.sin(half), np.cos(half)])
+    zeros = np.zeros((poses.shape[0], 3))
+    rows = _rows(ids, poses[:, :2], zeros, np.sin(half), np.cos(half))
     with Path(path).open("w") as handle:
         handle.write("# timestamp(vertex id) x y z qx qy qz qw\n")
         _savetxt(handle, rows, ["%d"] + ["%.17g"] * 7)
+
+
+def tum_rounded(ids: np.ndarray) -> int:
+    """How many of the ``(N,)`` ids a float64 reader of the TUM timestamp (evo) sees as the
+    same number as another id (0 for ids up to 2⁵³; GTSAM ``Symbol`` keys, a letter in the top
+    byte, share one float64 per 1024 consecutive indices)."""
+    ids = np.asarray(ids, dtype=np.uint64)
+    return int(ids.size - np.unique(ids.astype(np.float64)).size)
 
 
 FLAGS_HEADER = "edge,i,j,kind,weight,flagged"
@@ -548,11 +664,11 @@ def write_flags(
     weights: np.ndarray | None = None,
 ) -> None:
     """Write one CSV row per edge: ``edge`` (its index, the order of the file's edge lines),
-    ``i``, ``j`` (its vertex ids), ``kind`` (:class:`~popbench.graph.EdgeKind` name in lower
-    case, under the problem's robot assignment), ``weight`` (the method's final robust weight
-    in ``[0, 1]``) and ``flagged`` (1: flagged as an outlier, 0: kept). ``weights`` ``(M,)`` or
-    ``inlier_mask`` ``(M,)`` bool None (the method reports none): that column is left empty
-    (pandas reads NaN)."""
+    ``i``, ``j`` (the file's ids of its vertices, :func:`file_ids`), ``kind``
+    (:class:`~popbench.graph.EdgeKind` name in lower case, under the problem's robot
+    assignment), ``weight`` (the method's final robust weight in ``[0, 1]``) and ``flagged``
+    (1: flagged as an outlier, 0: kept). ``weights`` ``(M,)`` or ``inlier_mask`` ``(M,)`` bool
+    None (the method reports none): that column is left empty (pandas reads NaN)."""
     edges = np.arange(graph.num_edges)
     kind_names = np.array([kind.name.lower() for kind in EdgeKind])[graph.kinds]
     weight_text = (
@@ -565,7 +681,9 @@ def write_flags(
         if inlier_mask is None
         else np.where(np.asarray(inlier_mask, dtype=bool), "0", "1")
     )
-    columns = [edges.astype(str), graph.tails.astype(str), graph.heads.astype(str), kind_names]
+    ids = file_ids(graph)
+    columns = [edges.astype(str), ids[graph.tails].astype(str), ids[graph.heads].astype(str)]
+    columns.append(kind_names)
     table = np.column_stack([*columns, weight_text, flag_text])
     with Path(path).open("w") as handle:
         handle.write(FLAGS_HEADER + "\n")

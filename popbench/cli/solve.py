@@ -170,7 +170,7 @@ def solve_record(
     if progress is not None:
         split = f" and splitting it among {robots} robots" if robots > 1 else ""
         progress.stage(f"loading {source}{split}…")
-    problem = build_problem(source, robots, partition, seed, init)
+    problem, notes = reading_notes(build_problem, source, robots, partition, seed, init)
     options = dict(options or {})
     if progress is not None:
         team = f", {problem.num_robots} robots" if problem.num_robots > 1 else ""
@@ -209,22 +209,46 @@ def solve_record(
         if isinstance(value, int | float | bool | str) or getattr(value, "ndim", None) == 0
     }
     record["outliers"] = flagged_edges(graph, result.inlier_mask)
-    write_outputs(graph, result, output, trajectory, flags)
+    notes += write_outputs(graph, result, output, trajectory, flags)
+    record["notes"] = notes
     return record
+
+
+def reading_notes(load, *arguments) -> tuple[Any, list[str]]:
+    """``load(*arguments)`` and the one-line messages of the
+    :class:`popbench.io.ReadWarning` it raised (lines skipped, edges an EQUIV merge dropped);
+    other warnings are shown as usual."""
+    import warnings
+
+    from popbench.io import ReadWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ReadWarning)
+        loaded = load(*arguments)
+    notes = []
+    for warning in caught:
+        if issubclass(warning.category, ReadWarning):
+            notes.append(str(warning.message))
+        else:
+            warnings.warn_explicit(
+                warning.message, warning.category, warning.filename, warning.lineno
+            )
+    return loaded, notes
 
 
 def flagged_edges(graph, inlier_mask) -> list[dict[str, int]] | None:
     """The edges ``inlier_mask`` ``(M,)`` flags (False), as ``{"edge", "i", "j"}`` dicts in
-    edge order; None without a mask."""
+    edge order, ``i``, ``j`` the file's vertex ids; None without a mask."""
     import numpy as np
+
+    from popbench.io import file_ids
 
     if inlier_mask is None:
         return None
     edges = np.flatnonzero(~np.asarray(inlier_mask, dtype=bool))
-    return [
-        {"edge": int(e), "i": int(i), "j": int(j)}
-        for e, i, j in zip(edges, graph.tails[edges], graph.heads[edges], strict=True)
-    ]
+    ids = file_ids(graph)
+    tails, heads = ids[graph.tails[edges]].tolist(), ids[graph.heads[edges]].tolist()
+    return [{"edge": int(e), "i": i, "j": j} for e, i, j in zip(edges, tails, heads, strict=True)]
 
 
 OUTPUT_OPTIONS = {"output": "--output", "trajectory": "--trajectory", "flags": "--flags"}
@@ -254,20 +278,32 @@ def write_outputs(
     output: str | Path | None = None,
     trajectory: str | Path | None = None,
     flags: str | Path | None = None,
-) -> None:
-    """Write a method's ``result`` on ``graph`` (the problem's global graph): the graph with the
-    solved poses to ``output`` (:func:`popbench.io.write_solution`), the TUM trajectory to
-    ``trajectory`` (:func:`popbench.io.write_tum`) and the per-edge CSV to ``flags``
+) -> list[str]:
+    """Write a method's ``result`` on ``graph`` (the problem's global graph), with the file's
+    own vertex ids: the graph with the solved poses to ``output``
+    (:func:`popbench.io.write_solution`), the TUM trajectory to ``trajectory``
+    (:func:`popbench.io.write_tum`) and the per-edge CSV to ``flags``
     (:func:`popbench.io.write_flags`, weights from ``result.extras["weights"]`` where the
-    method reports them: gnc, mm-pgo with a kernel)."""
-    from popbench.io import write_flags, write_solution, write_tum
+    method reports them: gnc, mm-pgo with a kernel). Returns the one-line notes for the user:
+    TUM timestamps that float64 readers (evo) will round (:func:`popbench.io.tum_rounded`)."""
+    from popbench.io import file_ids, tum_rounded, write_flags, write_solution, write_tum
 
+    notes = []
     if output is not None:
         write_solution(graph, result.poses, output)
     if trajectory is not None:
-        write_tum(result.poses, trajectory)
+        write_tum(result.poses, trajectory, file_ids(graph))
+        rounded = tum_rounded(file_ids(graph))
+        if rounded:
+            notes.append(
+                f"{trajectory}: the timestamps are the vertex ids, exact in the file, but "
+                f"{rounded} of {graph.num_poses} are above 2^53 and share their float64 value "
+                "with another id, so evo (which reads timestamps as float64) cannot tell them "
+                "apart; the .g2o/.graph output keeps every id exactly (docs/solve.md)"
+            )
     if flags is not None:
         write_flags(graph, flags, result.inlier_mask, result.extras.get("weights"))
+    return notes
 
 
 def _print_summary(record: dict[str, Any]) -> None:
@@ -278,7 +314,7 @@ def _print_summary(record: dict[str, Any]) -> None:
     table.add_column("quantity")
     table.add_column("value", justify="right")
     for key, value in record.items():
-        if value is None or value == {}:
+        if value is None or value == {} or key == "notes":  # notes: one line each on stderr
             continue
         text = f"{value:.6g}" if isinstance(value, float) else str(value)
         if key == "outliers":
@@ -410,6 +446,8 @@ def solve_command(
 
     with limited_threads(threads), live if live is not None else contextlib.nullcontext():
         record = solve_record(source, **arguments, progress=live)
+    for note in record["notes"]:
+        sys.stderr.write(f"popbench: note: {note}\n")
     if json_output:
         typer.echo(json.dumps(record))
     else:
