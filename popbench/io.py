@@ -100,15 +100,14 @@ MAX_VERTEX_ID = 2**64 - 1
 
 def _parse_id(path: Path, lineno: int, tag: str, field: str, token: str) -> int:
     """The vertex id ``token`` of field ``field`` as an exact int in ``0 … MAX_VERTEX_ID``."""
-    where = f"{tag} field {field}: vertex id {token!r}"
-    if not (token.isascii() and token.isdigit()):
-        message = f"{where} is not an integer ≥ 0 written in decimal digits"
-        raise DataFormatError(path, lineno, message)
-    value = int(token)
-    if value > MAX_VERTEX_ID:
-        message = f"{where} is out of range (0 to {MAX_VERTEX_ID}, 64 bits)"
-        raise DataFormatError(path, lineno, message)
-    return value
+    if token.isdigit() and token.isascii():
+        value = int(token)
+        if value <= MAX_VERTEX_ID:
+            return value
+        why = f"is out of range (0 to {MAX_VERTEX_ID}, 64 bits)"
+    else:
+        why = "is not an integer ≥ 0 written in decimal digits"
+    raise DataFormatError(path, lineno, f"{tag} field {field}: vertex id {token!r} {why}")
 
 
 def _parse_line(
@@ -122,21 +121,13 @@ def _parse_line(
         )
     fields = _FIELDS[tag]
     id_count = 1 if tag.startswith("VERTEX") else 2
-    values = []
-    for k, token in enumerate(tokens[1 + id_count :], start=id_count):
-        try:
-            value = float(token)
-        except ValueError:
-            message = f"{tag} field {fields[k]} (value {k + 1} of {count - 1}) is {token!r}: "
-            raise DataFormatError(path, lineno, message + "expected a number") from None
-        if not math.isfinite(value):
-            message = f"{tag} field {fields[k]} (value {k + 1} of {count - 1}) is non-finite"
-            raise DataFormatError(path, lineno, f"{message} ({token!r})")
-        values.append(value)
-    ids = [
-        _parse_id(path, lineno, tag, field, token)
-        for field, token in zip(fields, tokens[1 : 1 + id_count], strict=False)
-    ]
+    try:
+        values = [float(token) for token in tokens[1 + id_count :]]
+    except ValueError:
+        values = []
+    if len(values) != count - 1 - id_count or not all(map(math.isfinite, values)):
+        _refuse_numbers(path, lineno, tokens, tag, id_count)
+    ids = [_parse_id(path, lineno, tag, fields[k], tokens[k + 1]) for k in range(id_count)]
     if id_count == 2 and ids[0] == ids[1]:
         why = (
             "an EQUIV line names two different vertices"
@@ -146,6 +137,21 @@ def _parse_line(
         message = f"{tag} joins vertex {ids[0]} to itself ({why})"
         raise DataFormatError(path, lineno, message)
     return ids, values
+
+
+def _refuse_numbers(path: Path, lineno: int, tokens: list[str], tag: str, id_count: int) -> None:
+    """Raise the DataFormatError for the first number of the line that is not a finite float."""
+    fields, count = _FIELDS[tag], len(tokens) - 1
+    for k in range(id_count, count):
+        token = tokens[k + 1]
+        where = f"{tag} field {fields[k]} (value {k + 1} of {count})"
+        try:
+            value = float(token)
+        except ValueError:
+            message = f"{where} is {token!r}: expected a number"
+            raise DataFormatError(path, lineno, message) from None
+        if not math.isfinite(value):
+            raise DataFormatError(path, lineno, f"{where} is non-finite ({token!r})")
 
 
 class _Lines(NamedTuple):

@@ -12,7 +12,7 @@ from conftest import require_dataset
 from popbench import se2
 from popbench.errors import DataFormatError
 from popbench.graph import odometry_composition
-from popbench.io import detect_format, read_graph, read_vertices, write_g2o
+from popbench.io import detect_format, read_graph, read_vertices, write_g2o, write_toro
 
 EDGE = "EDGE_SE2 0 1 1.0 0.0 0.1 10 0 0 10 0 10"
 VERTICES = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0.1\n"
@@ -241,7 +241,7 @@ def test_ground_truth_vertices_only(tmp_path: Path) -> None:
 
 
 # TORO EQUIV: vertices 1 and 3 are one pose (chained with 3 ≡ 4); edges redirected, self-loops
-# dropped, ids renumbered in order.
+# dropped, internal indices renumbered in order.
 EQUIV_TORO = """VERTEX2 0 0 0 0
 VERTEX2 1 1 0 0
 VERTEX2 2 2 0 0
@@ -270,6 +270,12 @@ def test_toro_equiv_merges_vertices_and_redirects_edges(tmp_path: Path) -> None:
     # The dropped edge 3–4 (information 4) is gone; the others keep their own information.
     np.testing.assert_array_equal(graph.information[:, 2, 2], [1, 2, 3, 5])
     np.testing.assert_array_equal(read_vertices(path), graph.poses)
+    # Written back with each class's kept (smallest) file id: 0, 1, 2, 5.
+    np.testing.assert_array_equal(graph.vertex_ids, [0, 1, 2, 5])
+    out = tmp_path / "merged.graph"
+    write_toro(graph, out)
+    ids = [line.split()[1 : 3 if "EDGE" in line else 2] for line in out.read_text().splitlines()]
+    assert ids == [["0"], ["1"], ["2"], ["5"], ["0", "1"], ["1", "2"], ["2", "1"], ["1", "5"]]
 
 
 def test_toro_equiv_without_vertex_lines_or_self_loops(tmp_path: Path) -> None:
