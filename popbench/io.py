@@ -241,11 +241,9 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
 def _id_range(ids: np.ndarray) -> str:
     """``"ids 0–5"`` for ascending ``ids`` without gaps, else ``"6 ids from 1 to 40"``."""
     first, last = int(ids[0]), int(ids[-1])
-    return (
-        f"ids {first}–{last}"
-        if last - first + 1 == ids.size
-        else (f"{ids.size} ids from {first} to {last}")
-    )
+    if last - first + 1 == ids.size:
+        return f"ids {first}–{last}"
+    return f"{ids.size} ids from {first} to {last}"
 
 
 def _vertex_table(path: Path, lines: _Lines) -> tuple[np.ndarray, np.ndarray | None]:
