@@ -651,11 +651,12 @@ def write_tum(poses: np.ndarray, path: str | Path, ids: np.ndarray | None = None
 
 
 def tum_rounded(ids: np.ndarray) -> int:
-    """How many of the ``(N,)`` ids a float64 reader of the TUM timestamp (evo) sees as the
-    same number as another id (0 for ids up to 2⁵³; GTSAM ``Symbol`` keys, a letter in the top
-    byte, share one float64 per 1024 consecutive indices)."""
-    ids = np.asarray(ids, dtype=np.uint64)
-    return int(ids.size - np.unique(ids.astype(np.float64)).size)
+    """How many of the ``(N,)`` ids a float64 reader of the TUM timestamp (evo) cannot tell
+    from another id: those whose float64 value another id shares (0 for ids up to 2⁵³; GTSAM
+    ``Symbol`` keys, a letter in the top byte, share one float64 per 1024 consecutive
+    indices)."""
+    _, counts = np.unique(np.asarray(ids, dtype=np.uint64).astype(np.float64), return_counts=True)
+    return int(counts[counts > 1].sum())
 
 
 FLAGS_HEADER = "edge,i,j,kind,weight,flagged"

@@ -100,7 +100,7 @@ def test_ids_as_written_solve_like_their_twin_and_come_back(
     np.testing.assert_array_equal(back.vertex_ids, np.array(ids, dtype=np.uint64))
     # TUM timestamps above 2⁵³ that float64 readers (evo) would merge are reported.
     if name in ("symbols", "top-of-64-bits"):
-        assert err.count("\n") == 1 and "of 20 are above 2^53" in err, err
+        assert err.count("\n") == 1 and "20 of the 20 ids are above 2^53" in err, err
     else:
         assert err == ""
 
@@ -182,6 +182,15 @@ def test_an_edge_to_a_missing_vertex_names_it(capsys: pytest.CaptureFixture, tmp
         f"popbench: error: {path}:{first}: EDGE_SE2 references vertex 16, which has no "
         "VERTEX_SE2 line (19 ids from 1 to 20)\n"
     )
+
+
+def test_tum_rounded_counts_the_ids_float64_merges() -> None:
+    from popbench.io import tum_rounded
+
+    assert tum_rounded(np.arange(5) + 2**53 - 4) == 0  # 2⁵³ − 4 … 2⁵³: all exact
+    assert tum_rounded(np.array([2**53, 2**53 + 1, 7])) == 2  # 2⁵³ + 1 rounds to 2⁵³
+    symbols = [symbol("a", k) for k in range(1030)] + [symbol("b", 0)]
+    assert tum_rounded(np.array(symbols, dtype=np.uint64)) == 1030  # spacing 1024 at 2⁶²
 
 
 def test_outliers_in_the_record_carry_the_file_ids(tmp_path: Path) -> None:

@@ -297,9 +297,9 @@ def write_outputs(
         if rounded:
             notes.append(
                 f"{trajectory}: the timestamps are the vertex ids, exact in the file, but "
-                f"{rounded} of {graph.num_poses} are above 2^53 and share their float64 value "
-                "with another id, so evo (which reads timestamps as float64) cannot tell them "
-                "apart; the .g2o/.graph output keeps every id exactly (docs/solve.md)"
+                f"{rounded} of the {graph.num_poses} ids are above 2^53 and share their float64 "
+                "value with another id, so evo (which reads timestamps as float64) cannot tell "
+                "them apart; the .g2o/.graph output keeps every id exactly (docs/solve.md)"
             )
     if flags is not None:
         write_flags(graph, flags, result.inlier_mask, result.extras.get("weights"))
