@@ -58,11 +58,12 @@ PPO_METRIC_FIELDS = (
 
 
 class EpisodeTracker:
-    """Per-environment running returns (mean over agents) across collector batches."""
+    """Per-environment running returns (mean over agents) across collector batches, and the
+    count of finished episodes (``episodes``: a resumed run's starts at its checkpoint's)."""
 
-    def __init__(self, num_envs: int) -> None:
+    def __init__(self, num_envs: int, episodes: int = 0) -> None:
         self.running = torch.zeros(num_envs)
-        self.episodes = 0
+        self.episodes = episodes
 
     def update(self, data: TensorDictBase) -> list[float]:
         """Returns of the episodes that finished in `data` ([num_envs, T])."""

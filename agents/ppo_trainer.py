@@ -29,7 +29,7 @@ from agents.config import TrainConfig
 from agents.metrics import PPO_METRIC_FIELDS
 from agents.ppo_actor import ACTION_KEY, SAMPLE_LOG_PROB_KEY, PPOPolicy
 from agents.session import training_env
-from agents.trainer import Learner, interrupts_deferred
+from agents.trainer import Learner
 from agents.value import VALUE_KEY, TeamValue, ValueOperator
 
 KEYS = {  # the explicit tensordict keys of ClipPPOLoss and GAE
@@ -159,8 +159,7 @@ class PPOBatches:
         logs: list[dict[str, float]] = []
         for _ in range(ppo.epochs):
             for index in torch.randperm(transitions.numel()).split(ppo.minibatch_size):
-                with interrupts_deferred():  # never stop half-way through a step
-                    logs.append(optimise_ppo(session, transitions[index]))
+                logs.append(optimise_ppo(session, transitions[index]))
         row: dict[str, Any] = {"reward_scale": session.reward_scale}
         for key in logs[0].keys() & set(PPO_METRIC_FIELDS):
             row[key] = sum(log[key] for log in logs) / len(logs)

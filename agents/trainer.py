@@ -25,9 +25,12 @@ metrics.csv is cut back to the checkpoint's frames first: a run killed between t
 checkpoints has logged batches that the resumed run collects again. Checkpoints and evaluations
 fall on multiples of their intervals, whatever frame count a run resumes at.
 
-Interrupts (Ctrl-C): a SIGINT that arrives during an optimisation step is held until the step
-ends (a second SIGINT stops at once); the run then logs the batch in progress, saves a
-checkpoint and raises KeyboardInterrupt, whose message says where the checkpoint is.
+Interrupts (Ctrl-C): a SIGINT that arrives while the run learns from a batch is held until
+that batch's updates are done (a second SIGINT stops at once), so a checkpoint never holds part
+of a batch; the run then logs the batch, saves a checkpoint and raises KeyboardInterrupt, whose
+message says where the checkpoint is. One that arrives while a batch is collected drops that
+batch (the resumed run collects it again). The checkpoint keeps the count of finished episodes;
+a resumed run restarts the episodes that were in progress (the environments are not saved).
 
 Frames are counted as TorchRL does: one frame = one step of one environment of the batch (all
 n agents at once), so a transition in the buffer is one joint (multi-agent) step.
@@ -257,9 +260,10 @@ def train(config: TrainConfig, resume: bool = True) -> TrainResult:
         save_snapshot(out_dir, learner.state(session))
     resumed_from = session.frames
     remaining = experiment.frames - session.frames
+    tracker = EpisodeTracker(experiment.num_envs, int((state or {}).get("episodes", 0)))
     if remaining > 0:
-        _run(session, learner, remaining, checkpoint, metrics_path, wall_offset)
-    final = learner.state(session)
+        _run(session, learner, remaining, checkpoint, metrics_path, wall_offset, tracker)
+    final = learner.state(session) | {"episodes": tracker.episodes}
     save_checkpoint(checkpoint, final)
     save_snapshot(out_dir, final)
     plot_learning_curve(metrics_path, out_dir / "learning_curve")
@@ -367,8 +371,7 @@ class GASACBatches:
             for _ in range(algorithm.updates_per_batch):
                 if not session.actor_learns and self.warmup_rule.over(session, self.heldout):
                     session.actor_learns = True
-                with interrupts_deferred():  # never stop half-way through a step
-                    logs = optimise(session, buffer.sample())
+                logs = optimise(session, buffer.sample())
                 row.update({k: v for k, v in logs.items() if k in METRIC_FIELDS})
         return row
 
@@ -388,6 +391,7 @@ def _run(
     checkpoint: Path,
     metrics_path: Path,
     wall_offset: float,
+    tracker: EpisodeTracker,
 ) -> None:
     """Collect `remaining` more frames (rounded up to whole batches), learning and logging."""
     experiment = session.config.experiment
@@ -405,7 +409,6 @@ def _run(
     eval_env = make_env(
         session.config, experiment.eval_problems, experiment.seed + EVAL_SEED_OFFSET, reward="F"
     )
-    tracker = EpisodeTracker(experiment.num_envs)
     next_checkpoint = _next_multiple(session.frames, experiment.checkpoint_interval)
     next_eval = _next_multiple(session.frames, experiment.eval_interval)
     start = time.perf_counter() - wall_offset
@@ -428,7 +431,8 @@ def _run(
                         episode_return=sum(returns) / len(returns) if returns else "",
                     )
                     updates = session.updates
-                    pending.update(batches.learn(data), updates=session.updates)
+                    with interrupts_deferred():  # a batch is learnt from whole or not at all
+                        pending.update(batches.learn(data), updates=session.updates)
                     if session.updates > updates:
                         collector.update_policy_weights_()
                     if session.frames >= next_eval:
@@ -440,7 +444,7 @@ def _run(
                     writer.writerow(row)
                     handle.flush()
                     if session.frames >= next_checkpoint:
-                        state = learner.state(session)
+                        state = learner.state(session) | {"episodes": tracker.episodes}
                         save_checkpoint(checkpoint, state)
                         save_snapshot(checkpoint.parent, state)
                         next_checkpoint = _next_multiple(
@@ -453,9 +457,10 @@ def _run(
                 if not is_interrupt(error):
                     raise
                 if pending is not None:  # log the interrupted batch so the CSV matches
+                    pending["updates"] = session.updates  # those done, should it be cut short
                     pending["wall_s"] = round(time.perf_counter() - start, 3)
                     writer.writerow(pending)
-                save_checkpoint(checkpoint, learner.state(session))
+                save_checkpoint(checkpoint, learner.state(session) | {"episodes": tracker.episodes})
                 raise KeyboardInterrupt(
                     f"checkpoint of {session.frames} frames saved in {checkpoint}"
                 ) from None

@@ -241,3 +241,61 @@ def test_init_actor_starts_from_that_actor_and_refuses_another_model(tmp_path) -
             ),
             resume=False,
         )
+
+
+def test_ctrl_c_in_a_ppo_batch_finishes_the_batch_and_resume_keeps_the_counts(
+    tmp_path, monkeypatch
+) -> None:
+    """SIGINT in the 2nd of a batch's 4 PPO steps: the batch's 4 steps complete, its row logs
+    them, and the resumed run continues the updates and the finished episodes' count."""
+    import agents.ppo_trainer as ppo_trainer
+    from agents.trainer import train
+    from test_ppo import tiny as tiny_ppo
+
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        pytest.skip("SIGINT has a custom handler in this process")
+    original, calls = ppo_trainer.optimise_ppo, [0]
+
+    def optimise_ppo(session, minibatch):
+        calls[0] += 1
+        if calls[0] == 10:  # the 2nd step of the 3rd batch (4 steps per 16-frame batch)
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(session, minibatch)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(ppo_trainer, "optimise_ppo", optimise_ppo)
+        with pytest.raises(KeyboardInterrupt, match="checkpoint of 48 frames saved"):
+            train(tiny_ppo(tmp_path, "mappo", 128), resume=False)
+    state = read_checkpoint(tmp_path / "checkpoint.pt")
+    with (tmp_path / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert (state["frames"], state["updates"]) == (48, 12)  # the whole 3rd batch
+    assert [int(row["updates"]) for row in rows] == [4, 8, 12]
+    assert state["episodes"] == int(rows[-1]["episodes"]) > 0
+
+    train(tiny_ppo(tmp_path, "mappo", 80), resume=True)
+    with (tmp_path / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(row["updates"]) for row in rows] == [4, 8, 12, 16, 20]
+    episodes = [int(row["episodes"]) for row in rows]
+    assert episodes == sorted(episodes) and episodes[3] >= state["episodes"]
+    assert read_checkpoint(tmp_path / "checkpoint.pt")["episodes"] == episodes[-1]
+
+
+def test_popbench_train_prints_where_the_checkpoint_is_after_ctrl_c(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    """typer turns a KeyboardInterrupt into a bare exit status 130; the message must print."""
+    import agents.trainer
+    from popbench.cli import main
+
+    def interrupted(config, resume):  # noqa: ARG001 - train's signature
+        raise KeyboardInterrupt(f"checkpoint of 96 frames saved in {tmp_path}/checkpoint.pt")
+
+    monkeypatch.setattr(agents.trainer, "train", interrupted)
+    code = main(["train", "--robots", "3", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 130
+    assert err.strip() == (
+        f"popbench: interrupted (checkpoint of 96 frames saved in {tmp_path}/checkpoint.pt)"
+    )

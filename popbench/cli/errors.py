@@ -22,6 +22,11 @@ class RuntimeFailure(Exception):
     """A command that ran but failed (exit status 1), with a one-line message."""
 
 
+class Interrupted(Exception):
+    """A Ctrl-C that a command caught to say what it saved (exit status 130). typer turns a
+    KeyboardInterrupt raised in a command into a bare exit status, dropping its message."""
+
+
 def one_line(text: str) -> str:
     """``text`` with every run of whitespace (newlines included) made one space."""
     return " ".join(str(text).split())
@@ -52,7 +57,7 @@ def run_safely(app: typer.Typer, argv: list[str] | None) -> int:
     except typer.Abort:
         sys.stderr.write("popbench: aborted\n")
         return EXIT_RUNTIME
-    except KeyboardInterrupt as error:
+    except (KeyboardInterrupt, Interrupted) as error:
         detail = f" ({error})" if str(error) else ""
         sys.stderr.write(f"popbench: interrupted{detail}\n")
         return EXIT_INTERRUPTED

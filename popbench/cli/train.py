@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 
+from popbench.cli.errors import Interrupted
 from popbench.cli.options import CommandThreads
 from popbench.errors import ValueRangeError
 
@@ -183,7 +184,10 @@ def train_command(
         imitation_episodes=imitation_episodes,
     )
     with limited_threads(threads):
-        summary = run_training(config, resume=resume).summary()
+        try:
+            summary = run_training(config, resume=resume).summary()
+        except KeyboardInterrupt as interrupt:  # its message says where the checkpoint is
+            raise Interrupted(str(interrupt)) from None
     typer.echo(summary)
 
 
