@@ -248,9 +248,10 @@ def test_ctrl_c_in_a_ppo_batch_finishes_the_batch_and_resume_keeps_the_counts(
 ) -> None:
     """SIGINT in the 2nd of a batch's 4 PPO steps: the batch's 4 steps complete, its row logs
     them, and the resumed run continues the updates and the finished episodes' count."""
+    from test_ppo import tiny as tiny_ppo
+
     import agents.ppo_trainer as ppo_trainer
     from agents.trainer import train
-    from test_ppo import tiny as tiny_ppo
 
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
         pytest.skip("SIGINT has a custom handler in this process")

@@ -67,14 +67,19 @@ def curves_command(
     reference: str = typer.Option(
         "",
         help="Run folders: popbench run heldout folders (comma-separated, one per seed) whose "
-        "gn-sweep, imitation and local-lm rows join the final table.",
+        "gn-sweep, imitation and local-lm rows join the final table; their gn-sweep row is the "
+        "zero of the normalised score (1: each problem's optimum F*).",
     ),
 ) -> None:
     """Learning curves: of training CSVs (every numeric column against frames, one line per
     file), or of run folders: each run's actor snapshots scored on held-out problems (median F,
-    mean ATE), one line per algorithm and start with a 95 % band over seeds; run folders also
-    write STEM.csv (every score), STEM.md (the final table) and STEM.marl-eval.json
-    (marl-eval's raw-data layout)."""
+    mean ATE, with --reference the normalised score), one line per algorithm and start with a
+    95 % band over seeds; run folders also write STEM.csv (every score), STEM.md (the final
+    table; with --reference the IQM and P(A > B) of the final actors, problems as tasks, drawn
+    in STEM-comparison.png), STEM.marl-eval.json (the final actors, every problem a task) and
+    STEM.learning.marl-eval.json (the snapshots), in marl-eval's raw-data layout. Two runs of
+    the same algorithm, start and seed are refused; training CSVs of the same name are named by
+    their folders."""
     for path in paths:
         if not path.exists():
             raise ValueRangeError("curves input", str(path), "an existing CSV file or run folder")

@@ -59,13 +59,32 @@ def read_metrics(path: Path, x: str = "frames") -> pd.DataFrame:
     return frame
 
 
+def line_labels(paths: list[Path]) -> list[str]:
+    """One distinct name per file: its stem, or where two stems are equal (runs' metrics.csv)
+    the folder that holds it, or else the whole path; a file given twice is a one-line
+    ``ValueRangeError``."""
+    resolved = [path.resolve() for path in paths]
+    twice = [str(path) for path, r in zip(paths, resolved, strict=True) if resolved.count(r) > 1]
+    if twice:
+        raise ValueRangeError("training CSVs", twice[0], "each file once")
+    for name in (lambda p: p.stem, lambda p: p.parent.name):
+        labels = [name(path) for path in paths]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [str(path) for path in resolved]
+
+
 def plot_learning_curves(
     csv_paths: list[Path], out: Path, x: str = "frames", columns: tuple[str, ...] | None = None
 ) -> list[Path]:
     """The training CSVs' ``columns`` (default: every numeric column) against ``x``, one panel
     per column, one line per file; PNG + PDF (``out.png``, ``out.pdf``). A file that is not such
-    a CSV is a one-line ``ValueRangeError``. ``popbench train`` draws its run's curve with it."""
-    frames = {path.stem: read_metrics(path, x) for path in csv_paths}
+    a CSV is a one-line ``ValueRangeError``. ``popbench train`` draws its run's curve with it.
+    Each line is named by :func:`line_labels`."""
+    frames = {
+        label: read_metrics(path, x)
+        for label, path in zip(line_labels(csv_paths), csv_paths, strict=True)
+    }
     plt = pyplot()
     if columns is None:
         columns = tuple(
