@@ -10,10 +10,11 @@ come from ``heldout/heldout.csv`` when it exists (all of its problems: the final
 folder holding only ``curve.csv`` (what ``results/algorithms/`` commits) is read as it is.
 
 :func:`aggregate` gives, per (algorithm, start, frames), the mean over seeds of each run's median
-F and mean ATE over the first ``problems`` problems, with a 95 % Student-t interval over seeds
-(mean ± t₀.₉₇₅,ₙ₋₁ · s / √n; none for one seed). :func:`marl_eval_json` writes the records in
-marl-eval's raw-data layout (environment → task → algorithm → run → step), negating F and ATE:
-marl-eval takes every metric as higher-is-better.
+F, mean ATE (and, with a gn-sweep reference, IQM of the normalised score: popbench.harness.scores)
+over the first ``problems`` problems, with a 95 % Student-t interval over seeds (mean ±
+t₀.₉₇₅,ₙ₋₁ · s / √n; none for one seed). :func:`marl_eval_json` writes the records in marl-eval's
+raw-data layout (environment → task → algorithm → run → step) with every held-out problem a
+task, negating F and ATE: marl-eval takes every metric as higher-is-better.
 """
 
 from __future__ import annotations
@@ -49,7 +50,14 @@ METRICS = {
     "ATE": "mean ATE over problems [m]",
     "score": "IQM of the normalised score over problems",
 }
-STATISTIC = {"F": "median", "ATE": "mean", "score": "iqm"}
+
+
+def _interquartile_mean(values: pd.Series) -> float:
+    return float(iqm(values.to_numpy()[None]))
+
+
+# Each run's statistic over the problems: the IQM for the score (robust to a blow-up's score).
+STATISTIC = {"F": "median", "ATE": "mean", "score": _interquartile_mean}
 # curve.csv files written before the column existed: every committed run's length.
 DEFAULT_POSES_PER_ROBOT = HeldoutConfig.poses_per_robot
 REFERENCE_ROWS = ("gn-sweep", "imitation", "local-lm")
@@ -137,7 +145,7 @@ def aggregate(records: pd.DataFrame, problems: int) -> pd.DataFrame:
     first = records[records["problem_seed"] < HELDOUT_SEED_BASE + problems]
     metrics = [metric for metric in METRICS if metric in records]
     per_run = first.groupby(["algorithm", "start", "frames", "seed"]).agg(
-        **{metric: (metric, _statistic(metric)) for metric in metrics}, problems=("F", "size")
+        **{metric: (metric, STATISTIC[metric]) for metric in metrics}, problems=("F", "size")
     )
     short = per_run[per_run["problems"] < problems]
     if not short.empty:
@@ -160,12 +168,6 @@ def aggregate(records: pd.DataFrame, problems: int) -> pd.DataFrame:
             row |= {metric: mean, f"{metric}_lo": mean - half, f"{metric}_hi": mean + half}
         rows.append(row)
     return pd.DataFrame(rows)
-
-
-def _statistic(metric: str):
-    if STATISTIC[metric] == "iqm":
-        return lambda values: float(iqm(values.to_numpy()[None]))
-    return STATISTIC[metric]
 
 
 def plot_curves(
