@@ -83,6 +83,12 @@ def actor_of(
     return actor.eval(), config
 
 
+def checkpoint_algorithm(path: str | Path) -> str:
+    """The algorithm that trained the checkpoint at ``path`` (its config's ``algorithm_name``:
+    ga-sac, mappo, ippo; a checkpoint written before it was recorded reads as ga-sac)."""
+    return TrainConfig.from_dict(read_checkpoint(path)["config"]).algorithm_name
+
+
 ACTOR_KEYS = ("config", "dims", "actor", "frames", "updates")
 
 

@@ -11,7 +11,9 @@ The learned rows, each adding one learned part to the one before (docs/training.
 ``learned-order`` (the imitation actor's own edge choices, each executed with Δ := 0 on the
 Gauss–Newton base step: what the learned *order* adds to gn-sweep's root-outward one),
 ``imitation`` (the same actor with its correction: what the learned Δ adds) and ``ga-sac`` (the
-GA-SAC fine-tuned actor of the same training run: what the fine-tuning adds).
+GA-SAC fine-tuned actor of the same training run: what the fine-tuning adds; any checkpoint
+given, shown under the algorithm that trained it, :func:`row_label`). The ``policy`` row runs a
+user's policy (agents.user_policy) in the environment it names.
 
 With an outlier rate (``spec["outlier_rate"]`` > 0) every row gets the same problem with
 outliers injected (popbench.outliers.with_outliers, the loop-closure candidates, seeded by the
@@ -28,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from agents.checkpoint import checkpoint_algorithm
 from agents.config import TRAJECTORY_TASK
 from agents.methods import CHECKPOINT_DIR, Episode, cached_actor, flag_gate, run_episode
 from agents.outlier_gate import candidate_auc
@@ -69,6 +72,13 @@ def row_checkpoints(
         row: (str(path), file_sha256(path)) if path.is_file() else None
         for row, path in paths.items()
     }
+
+
+def row_label(row: str, checkpoint: str | Path) -> str:
+    """The name a learned ``row`` is shown under: ``ga-sac`` (the row of any fine-tuned
+    checkpoint) under the algorithm that trained ``checkpoint`` (its config's
+    ``algorithm_name``: ga-sac, mappo, ippo), the other rows under their own."""
+    return checkpoint_algorithm(checkpoint) if row == "ga-sac" else row
 
 
 def episode(problem: DistributedProblem, policy: Callable[[Any], Policy]) -> list:
@@ -145,7 +155,7 @@ def learned_episode(row: str, problem: DistributedProblem, checkpoint: str | Pat
 
 def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any]) -> list:
     """The robots' local copies that ``row`` hands to the consensus (a learned row runs the
-    actor of ``spec["checkpoint"]``)."""
+    actor of ``spec["checkpoint"]``, the policy row the policy of ``spec["policy"]``)."""
     from envs.expert import Expert
     from envs.sweep import GaussNewtonSweep
     from envs.tree import place_separators
@@ -166,6 +176,10 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
         return local_optima(problem)[0]
     if row == "ground-truth":
         return problem.split(problem.graph.ground_truth)
+    if row == "policy":
+        from agents.user_policy import policy_episode
+
+        return policy_episode(problem, spec)
     raise NotImplementedError(f"held-out row {row!r}")
 
 

@@ -11,8 +11,11 @@ interrupted run resumes where it stopped; ``--fresh`` recomputes every cell. ``-
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -255,6 +258,26 @@ def scalability_command(
 HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
 
 
+def keyword_options(text: str, option: str) -> dict[str, Any]:
+    """``KEY=VALUE,…`` (each VALUE read as JSON where it is: numbers, true/false, [lists], else
+    a string) or a JSON object, as a dict."""
+    if text.lstrip().startswith("{"):
+        try:
+            return dict(json.loads(text))
+        except ValueError as error:
+            raise ValueRangeError(option, text, f"a JSON object ({error})") from None
+    options = {}
+    for item in re.split(r",(?![^\[]*\])", text) if text else []:  # commas outside [...]
+        key, equals, value = item.partition("=")
+        if not equals or not key.strip():
+            raise ValueRangeError(option, item, "KEY=VALUE")
+        try:
+            options[key.strip()] = json.loads(value)
+        except ValueError:
+            options[key.strip()] = value.strip()
+    return options
+
+
 @experiment(
     "heldout",
     "popbench run heldout                               # V2, n = 7, 100 problems, every row",
@@ -263,6 +286,11 @@ HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
     "popbench run heldout --noise V1,V3 --robots 3,7 --problems 30 --consensus admm",
     "popbench run heldout --robots 3 --problems 2 --rows initial,no-op,local-lm --json",
     "popbench run heldout --problems 30 --rows no-op,ga-sac --outlier-rate 0.1",
+    "popbench run heldout --problems 30 --rows gn-sweep,ga-sac,local-lm --policy mine.py:act "
+    "--policy-env correction=subtree,observation=invariant",
+    "popbench run heldout --problems 10 --rows gn-sweep,local-lm --policy "
+    "examples/reinforce.py:load_policy --policy-arg runs/reinforce/policy.pt "
+    '--policy-env "$(python examples/reinforce.py --env)" --policy-name reinforce',
 )
 def heldout_command(
     *,
@@ -284,8 +312,9 @@ def heldout_command(
     ),
     checkpoint: Path = typer.Option(
         None,
-        help="The ga-sac row's actor (default: the committed GA-SAC fine-tuned "
-        "actor-V2-n7-robust.pt, agents/checkpoints/README.md).",
+        help="The ga-sac row's actor, any training checkpoint or snapshot; the row is shown "
+        "under the algorithm that trained it (ga-sac, mappo, ippo; default: the committed "
+        "GA-SAC fine-tuned actor-V2-n7-robust.pt, agents/checkpoints/README.md).",
         show_default=False,
     ),
     imitation_checkpoint: Path = typer.Option(
@@ -308,6 +337,25 @@ def heldout_command(
         help="Outliers injected into every problem (share of the loop closures); adds the "
         "learned rows' gate_auc, gate_precision and gate_recall.",
     ),
+    policy: str = typer.Option(
+        None,
+        help="Score your own policy as one more row: MODULE:ATTR or path/to/file.py:ATTR, a "
+        "TorchRL actor module or a callable (agents) -> (edge [n], delta [n, 3]); with "
+        "--policy-arg, a factory ATTR(ARG) returning one (docs/algorithms.md).",
+        show_default=False,
+    ),
+    policy_arg: str = typer.Option(
+        None, help="The argument of a --policy factory (e.g. a weights file).", show_default=False
+    ),
+    policy_name: str = typer.Option(
+        None, help="The --policy row's name (default: ATTR).", show_default=False
+    ),
+    policy_env: str = typer.Option(
+        None,
+        help="The env the --policy acts in: envs.make_torchrl_env's keyword options as "
+        "KEY=VALUE,… or a JSON object (default: its defaults, the paper's game).",
+        show_default=False,
+    ),
     run: Run,
     json_output: bool = typer.Option(
         False, "--json", help="Print the summary as one JSON object, the last line on stdout."
@@ -321,7 +369,8 @@ def heldout_command(
     OUT/heldout.csv (one line per problem and row), summary.csv (mean and median F, local F
     and ATE with bootstrap 95 % CIs, the share of the no-op → local-lm gap each row closes),
     paired.csv (learned-order − gn-sweep, imitation − learned-order, ga-sac − imitation
-    problem by problem, with 95 % CIs), heldout.md, heldout.png/.pdf and manifest.json.
+    problem by problem, with 95 % CIs; a --policy row against no-op, gn-sweep, imitation,
+    ga-sac and local-lm), heldout.md, heldout.png/.pdf and manifest.json.
     """
     from popbench.harness.heldout import (
         ROW_ALIASES,
@@ -352,6 +401,10 @@ def heldout_command(
         imitation_checkpoint=imitation_checkpoint,
         out=out,
         outlier_rate=outlier_rate,
+        policy=policy,
+        policy_arg=policy_arg,
+        policy_name=policy_name,
+        policy_env=keyword_options(policy_env or "", "--policy-env"),
     )
     table = run_heldout(config, run)
     if json_output:

@@ -104,7 +104,8 @@ def score_run(run: Path, problems: int) -> pd.DataFrame:
     for point in sorted(set(found) - set(done["frames"])):
         if point == final and heldout_csv.is_file():
             rows = pd.read_csv(heldout_csv)
-            rows = rows[rows["row"].map(lambda row: ROW_ALIASES.get(row, row)) == "ga-sac"]
+            named = {"ga-sac", identity.algorithm}  # the checkpoint's row, by its algorithm
+            rows = rows[rows["row"].map(lambda row: ROW_ALIASES.get(row, row)).isin(named)]
         else:
             config = HeldoutConfig(
                 noise=(identity.noise,),

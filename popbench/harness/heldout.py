@@ -7,7 +7,9 @@ sweep, the learned actors, every local graph at its own optimum (``local-lm``), 
 truth. ``initial`` is the start itself, without a consensus. The rows from ``gn-sweep`` to
 ``local-lm`` add one learned part each (agents.heldout: the learned edge order, the learned
 correction, the GA-SAC fine-tuning), and :func:`paired` compares consecutive ones problem by
-problem (:data:`PAIRS`).
+problem (:data:`PAIRS`). A user's policy (``HeldoutConfig.policy``, agents.user_policy) adds one
+row, compared with :data:`POLICY_REFERENCES` the same way. A row is shown under its label: the
+``ga-sac`` row under the algorithm that trained its checkpoint, the policy's under its name.
 
 Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
 (``envs.sampler.ProblemSampler``) draw 32-bit seeds, all below the base, so the two never meet.
@@ -16,7 +18,6 @@ Held-out problems use the seeds ``HELDOUT_SEED_BASE + k``; the training streams
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import time
 from pathlib import Path
@@ -50,10 +51,14 @@ ROWS = (
 ROW_ALIASES = {"prop-v1": "ga-sac"}
 # The paired comparisons (row A, row B) of paired.csv: what each learned part adds.
 PAIRS = (("learned-order", "gn-sweep"), ("imitation", "learned-order"), ("ga-sac", "imitation"))
+# The rows a user's policy is compared with, problem by problem (those present).
+POLICY_REFERENCES = ("no-op", "gn-sweep", "imitation", "ga-sac", "local-lm")
 PAIRED_METRICS = ("F_robots", "F_local", "F", "ATE")
 # The function that computes one row of one problem: (spec) -> {"F", "ATE", "F_local"}.
 ROW_FUNCTION = "agents.heldout:evaluate_row"
 CHECKPOINTS_FUNCTION = "agents.heldout:row_checkpoints"
+LABEL_FUNCTION = "agents.heldout:row_label"  # (row, checkpoint) -> the row's label
+POLICY_FUNCTION = "agents.user_policy:describe_policy"  # (policy, arg, env) -> spec entries
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,6 +77,12 @@ class HeldoutConfig:
         imitation_checkpoint: the actor of the ``imitation`` and ``learned-order`` rows (None:
             the committed one).
         out: output folder.
+        policy: a user's policy, ``"module:attr"`` or ``"file.py:attr"`` (agents.user_policy),
+            scored as one more row; None: none.
+        policy_arg: the argument of a policy factory (``attr(policy_arg)`` is the policy).
+        policy_name: the policy row's label (None: the attribute's name).
+        policy_env: the keyword options of the env the policy acts in (those of
+            ``envs.make_torchrl_env``; empty: its defaults).
         outlier_rate: outliers injected into every held-out problem (popbench.outliers, the
             loop-closure candidates; 0 = none, the cells of before); with it the learned rows
             are scored as outlier classifiers (gate_auc, gate_precision, gate_recall).
@@ -87,6 +98,10 @@ class HeldoutConfig:
     imitation_checkpoint: Path | None = None
     out: Path = Path("results/heldout")
     outlier_rate: float = 0.0
+    policy: str | None = None
+    policy_arg: str | None = None
+    policy_name: str | None = None
+    policy_env: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 def canonical_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
@@ -96,15 +111,38 @@ def canonical_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
 
 def cell_specs(config: HeldoutConfig) -> list[Spec]:
     """One specification per (noise, robots, problem, row), with the code and, for the learned
-    rows, the checkpoint's sha256 it is computed from. A learned row whose checkpoint does not
-    exist is left out of the default rows and refused when asked for by name."""
+    rows, the checkpoint's sha256 it is computed from (for the policy row, its digest); a
+    ``label`` where the row is shown under another name. A learned row whose checkpoint does
+    not exist is left out of the default rows and refused when asked for by name."""
     checkpoints = load_object(CHECKPOINTS_FUNCTION)(config.checkpoint, config.imitation_checkpoint)
+    labels = {
+        row: load_object(LABEL_FUNCTION)(row, found[0])
+        for row, found in checkpoints.items()
+        if found is not None
+    }
+    rows = canonical_rows(config.rows)
+    extra: dict[str, dict[str, Any]] = {row: {} for row in rows}
+    for row, label in labels.items():
+        if label != row:
+            extra[row]["label"] = label
+    if config.policy is not None:
+        described = load_object(POLICY_FUNCTION)(
+            config.policy, config.policy_arg, config.policy_env
+        )
+        described["label"] = config.policy_name or described["label"]
+        taken = {extra[row].get("label", row) for row in rows} | set(ROWS)
+        if described["label"] in taken:
+            from popbench.errors import ValueRangeError
+
+            name = described["label"]
+            raise ValueRangeError("--policy-name", name, f"a name other than {', '.join(taken)}")
+        rows, extra["policy"] = (*rows, "policy"), described
     code = code_fingerprint()
     specs = []
     for noise in config.noise:
         for robots in config.robots:
             for k in range(config.problems):
-                for row in canonical_rows(config.rows):
+                for row in rows:
                     spec: dict[str, Any] = {
                         "experiment": "heldout",
                         "code": code,
@@ -121,19 +159,20 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                         if checkpoints[row] is None:
                             continue
                         spec["checkpoint"], spec["checkpoint_sha256"] = checkpoints[row]
-                    specs.append(spec)
+                    specs.append({**spec, **extra[row]})
     return specs
 
 
 def compute_cell(spec: Spec) -> dict[str, Any]:
-    """One row of one held-out problem (``agents.heldout.evaluate_row``) and its wall time."""
+    """One row of one held-out problem (``agents.heldout.evaluate_row``) and its wall time; the
+    row under its label."""
     started = time.perf_counter()
     measured = load_object(ROW_FUNCTION)(spec)
     return {
         "noise": spec["noise"],
         "robots": spec["robots"],
         "problem_seed": spec["problem_seed"],
-        "row": spec["row"],
+        "row": spec.get("label", spec["row"]),
         **measured,
         "wall_s": time.perf_counter() - started,
     }
@@ -154,7 +193,7 @@ def summary(frame: pd.DataFrame) -> pd.DataFrame:
     for (noise, robots), group in frame.groupby(["noise", "robots"], sort=False):
         medians = group.groupby("row")["F"].median()
         ate_means = group.groupby("row")["ATE"].mean()
-        for row in [r for r in ROWS if r in set(group["row"])]:
+        for row in dict.fromkeys(group["row"]):  # the table's order
             values = group[group["row"] == row]
             f, ate, local = (values[k].to_numpy() for k in ("F", "ATE", "F_local"))
             robots_f = values.get("F_robots", pd.Series(np.nan, index=values.index)).to_numpy()
@@ -327,7 +366,7 @@ def figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
     groups = list(frame.groupby(["noise", "robots"], sort=False))
     fig, axes = plt.subplots(1, len(groups), figsize=(6.5 * len(groups), 4.0), squeeze=False)
     for axis, ((noise, robots), group) in zip(axes[0], groups, strict=True):
-        rows = [r for r in ROWS if r in set(group["row"])]
+        rows = list(dict.fromkeys(group["row"]))
         axis.boxplot([group.loc[group["row"] == r, "F"] for r in rows], showfliers=False)
         axis.set_xticks(range(1, len(rows) + 1), rows, rotation=40, ha="right")
         axis.set_yscale("log")
@@ -358,23 +397,40 @@ def run_heldout(config: HeldoutConfig, run: Run | None = None) -> pd.DataFrame:
     ``heldout.png``/``.pdf`` and ``manifest.json`` into ``config.out``; returns the summary
     (with the paired differences in ``attrs["paired"]``)."""
 
+    labels: dict[str, str] = {}
+
     def cells() -> list[Spec]:
         unknown = sorted(set(canonical_rows(config.rows)) - set(ROWS))
         if unknown:
             from popbench.errors import ValueRangeError
 
             raise ValueRangeError("heldout rows", ",".join(unknown), ", ".join(ROWS))
-        return cell_specs(config)
+        specs = cell_specs(config)
+        labels.update((spec["row"], spec.get("label", spec["row"])) for spec in specs)
+        return specs
 
-    write = functools.partial(write_heldout, config)
+    def write(rows: list[Row]) -> pd.DataFrame:
+        return write_heldout(config, rows, labelled_pairs(labels))
+
     return run_experiment(config.out, cells, compute_cell, write, run)
 
 
-def write_heldout(config: HeldoutConfig, rows: list[Row]) -> pd.DataFrame:
-    """The per-problem table of ``rows``, its summary (returned, the paired differences in its
-    ``attrs["paired"]``) and figure, written into ``config.out``."""
+def labelled_pairs(labels: dict[str, str]) -> tuple[tuple[str, str], ...]:
+    """:data:`PAIRS` and, with a ``policy`` row, (policy, reference) for each of
+    :data:`POLICY_REFERENCES`, every row under its label (``labels``: row -> label)."""
+    pairs = list(PAIRS)
+    if "policy" in labels:
+        pairs += [("policy", reference) for reference in POLICY_REFERENCES]
+    return tuple((labels.get(a, a), labels.get(b, b)) for a, b in pairs)
+
+
+def write_heldout(
+    config: HeldoutConfig, rows: list[Row], pairs: tuple[tuple[str, str], ...] = PAIRS
+) -> pd.DataFrame:
+    """The per-problem table of ``rows``, its summary (returned, the paired differences of
+    ``pairs`` in its ``attrs["paired"]``) and figure, written into ``config.out``."""
     frame = pd.DataFrame(rows)
-    table, pairs = summary(frame), paired(frame)
+    table, pairs = summary(frame), paired(frame, pairs)
     table.attrs["paired"] = pairs
     frame.to_csv(config.out / "heldout.csv", index=False, float_format="%.10g")
     table.to_csv(config.out / "summary.csv", index=False, float_format="%.10g")
