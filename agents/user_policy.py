@@ -11,7 +11,9 @@ your own algorithm").
   "observation" (the graph fields) and "action_mask";
 
 or, with ``--policy-arg ARG``, a factory that ``ATTR(ARG)`` turns into one of them (e.g. a
-function that loads trained weights from the file ARG). The policy runs one deterministic
+function that loads trained weights from the file ARG). A recurrent module declares its state
+TorchRL's way (``make_tensordict_primer``, as ``GRUModule`` does; the env is then wrapped in
+that primer). The policy runs one deterministic
 episode (TorchRL's DETERMINISTIC exploration type, as the shipped learned rows run) of the
 TorchRL env (envs.torchrl_env.PGOEnv, B = 1) built with ``--policy-env`` (the keyword options
 of ``envs.make_torchrl_env``: the env the policy was trained in; its defaults, the paper's
@@ -154,17 +156,22 @@ def problem_env(problem: DistributedProblem, spec: dict[str, Any]) -> Any:
 def policy_episode(problem: DistributedProblem, spec: dict[str, Any]) -> list[np.ndarray]:
     """The robots' local copies after the policy's deterministic episode (module docstring)."""
     from tensordict.nn import TensorDictModuleBase
+    from torchrl.envs import TransformedEnv
     from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from torchrl.modules.utils import get_primers_from_module
 
     policy = cached_policy(spec["policy"], spec.get("policy_arg"))
-    env = problem_env(problem, spec)
+    env = base = problem_env(problem, spec)
+    if isinstance(policy, torch.nn.Module):  # a recurrent module's state, as TorchRL primes it
+        primers = get_primers_from_module(policy, warn=False)
+        env = base if primers is None else TransformedEnv(base, primers)
     if not isinstance(policy, TensorDictModuleBase):
         policy = _acting_on_tensordict(policy, problem.num_robots)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        steps = env.rollout(env.dims.edges + 1, policy, break_when_any_done=True)
+        steps = env.rollout(base.dims.edges + 1, policy, break_when_any_done=True)
     if not bool(steps["next", "done"][0, -1].all()):
         raise ValueRangeError("--policy", spec["policy"], "a policy whose episode ends")
-    return env.local_poses(0)
+    return base.local_poses(0)
 
 
 def _acting_on_tensordict(policy: Any, n: int) -> Any:
