@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
@@ -74,6 +75,7 @@ def test_probabilistic_actor_samples_valid_actions_with_the_factorised_log_prob(
     log-probability is log π(e) + log π(δ | s, e) by torch.distributions, with the Gaussian
     of the *sampled* edge (TorchRL's CompositeDistribution would take e and δ independent)."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from torchrl.objectives import ClipPPOLoss
 
     from envs import make_torchrl_env
 
@@ -81,7 +83,7 @@ def test_probabilistic_actor_samples_valid_actions_with_the_factorised_log_prob(
     env = make_torchrl_env(3, 2, poses_per_robot=10, seed=0)
     bound = env.full_action_spec["agents", "action", "delta"].space.high.reshape(-1, 3)[0]
     actor = probabilistic_actor(env, bound)
-    with set_exploration_type(ExplorationType.RANDOM):
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
         steps = env.rollout(6, actor)  # [B = 2, T = 6]
     edge, delta = steps["agents", "action", "edge"], steps["agents", "action", "delta"]
     mask = steps["agents", "action_mask"]
@@ -105,6 +107,19 @@ def test_probabilistic_actor_samples_valid_actions_with_the_factorised_log_prob(
         assert not torch.allclose(dist.delta_log_prob(delta, other), delta_part, atol=1e-2)
         deterministic_edge, deterministic_delta = dist.deterministic_sample
         assert torch.equal(deterministic_edge, logits.masked_fill(~mask, -math.inf).argmax(-1))
+
+    # TorchRL's ClipPPOLoss takes the actor as it is: ratio 1 on its own samples, a gradient
+    loss = ClipPPOLoss(actor, critic_network=None, critic_coeff=None, entropy_coeff=0.01)
+    loss.set_keys(
+        action=("agents", "action"),
+        sample_log_prob=("agents", "sample_log_prob"),
+        advantage=("agents", "advantage"),
+    )
+    steps["agents", "advantage"] = torch.randn(*edge.shape, 1)
+    out = loss(steps)
+    assert float(out["mean_ratio"]) == pytest.approx(1.0, abs=1e-5)
+    (out["loss_objective"] + out["loss_entropy"]).backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in actor.parameters())
 
 
 def test_per_edge_entropy_is_the_expected_sum_of_the_parts() -> None:
