@@ -13,14 +13,16 @@ your own algorithm").
 or, with ``--policy-arg ARG``, a factory that ``ATTR(ARG)`` turns into one of them (e.g. a
 function that loads trained weights from the file ARG). A recurrent module declares its state
 TorchRL's way (``make_tensordict_primer``, as ``GRUModule`` does; the env is then wrapped in
-that primer). The policy runs one deterministic
-episode (TorchRL's DETERMINISTIC exploration type, as the shipped learned rows run) of the
-TorchRL env (envs.torchrl_env.PGOEnv, B = 1) built with ``--policy-env`` (the keyword options
-of ``envs.make_torchrl_env``: the env the policy was trained in; its defaults, the paper's
-game, when absent), loaded with the held-out problem; the robots' local copies then go through
-the consensus and the scoring of every row (agents.heldout.evaluate_row). The padding is the
-env's default for the protocol's synthetic problems (``make_problem_source``), widened where a
-held-out problem needs more; ``max_vertices`` / ``max_edges`` / ``max_degree`` set it.
+that primer).
+
+The policy runs one deterministic episode (TorchRL's DETERMINISTIC exploration type, as the
+shipped learned rows run) of the TorchRL env (envs.torchrl_env.PGOEnv, B = 1) built with
+``--policy-env`` (the keyword options of ``envs.make_torchrl_env``: the env the policy was
+trained in; its defaults, the paper's game, when absent), loaded with the held-out problem;
+the robots' local copies then go through the consensus and the scoring of every row
+(agents.heldout.evaluate_row). The padding is the env's default for the protocol's synthetic
+problems (``make_problem_source``), widened where a held-out problem needs more;
+``max_vertices`` / ``max_edges`` / ``max_degree`` set it.
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 
 The env comes from ``envs.make_torchrl_env``, the hybrid action's distribution from
 ``agents.HybridActionDistribution``, everything else from TorchRL (``TensorDictModule``,
-``ProbabilisticActor``, ``env.rollout``). The policy scores every edge from its own features
+``ProbabilisticActor``, ``env.rollout``: TorchRL's ``Collector`` kept a stale action mask on
+2026-12-04, docs/algorithms.md). The policy scores every edge from its own features
 and its endpoints' (no message passing: a deliberately small model). Train, then score it on
 the held-out problems as the shipped rows are scored (docs/algorithms.md)::
 
@@ -20,6 +21,7 @@ from pathlib import Path
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
 from agents import HybridActionDistribution
@@ -43,7 +45,7 @@ class EdgeScorer(nn.Module):
         )
         nn.init.zeros_(self.net[-1].weight)  # untrained: uniform edges, Δ = 0 (base step only)
         nn.init.zeros_(self.net[-1].bias)
-        nn.init.constant_(self.net[-1].bias[4:], -1.0)  # log-std: exploration of ~0.37 Δ units
+        nn.init.constant_(self.net[-1].bias[4:], -2.0)  # log-std: pre-tanh noise 0.14
         self.noop = nn.Parameter(torch.zeros(7))
 
     def forward(self, nodes, edge_index, edge_attr, residuals):  # noqa: ANN001, ANN201
@@ -79,13 +81,13 @@ def train(updates: int, out: Path, robots: int = 3, envs: int = 8, poses: int = 
     dims = [observation[k].shape[-1] for k in ("node_features", "edge_attr")]
     delta_max = env.full_action_spec["agents", "action", "delta"].space.high.reshape(-1, 3)[0]
     actor = make_actor(*dims, delta_max)
-    optimiser = torch.optim.Adam(actor.parameters(), lr=1e-3)
+    optimiser = torch.optim.Adam(actor.parameters(), lr=3e-4)
     horizon = observation["edge_mask"].shape[-1]  # E: no episode is longer
     for update in range(updates):
-        with torch.no_grad():  # one episode per problem (later steps belong to the next one)
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # sample actions
             batch = env.rollout(horizon, actor, break_when_any_done=False)  # [B, T]
         done = batch["next", "done"].squeeze(-1).long()  # [B, T]
-        first = (done.cumsum(-1) - done) == 0  # the steps of each problem's first episode
+        first = (done.cumsum(-1) - done) == 0  # each problem's first episode (then a new one)
         reward = batch["next", "agents", "reward"].squeeze(-1) * first.unsqueeze(-1)  # [B, T, n]
         to_go = reward.flip(1).cumsum(1).flip(1)  # undiscounted return from each step
         advantage = (to_go - to_go[first].mean()) / (to_go[first].std() + 1e-8)

@@ -253,6 +253,7 @@ def test_bad_policy_options_are_one_line(tmp_path, capsys) -> None:
         ((*policy, "--policy-env", "colour=red"), "invalid --policy-env 'colour'"),
         ((*policy, "--policy-env", "{oops"), "a JSON object"),
         ((*policy, "--policy-name", "no-op"), "invalid --policy-name 'no-op'"),
+        (("--policy-env", "base=none"), "need --policy"),
     ):
         code = main(["run", "heldout", *args, "--rows", "no-op", "--out", str(tmp_path / "o")])
         err = capsys.readouterr().err

@@ -382,6 +382,8 @@ def heldout_command(
     )
     from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS
 
+    if policy is None and (policy_arg, policy_name, policy_env) != (None, None, None):
+        raise PopbenchError("--policy-arg, --policy-name and --policy-env need --policy")
     for path, what in (
         (checkpoint, "--checkpoint"),
         (imitation_checkpoint, "--imitation-checkpoint"),
