@@ -340,7 +340,7 @@ def heldout_command(
     policy: str = typer.Option(
         None,
         help="Score your own policy as one more row: MODULE:ATTR or path/to/file.py:ATTR, a "
-        "TorchRL actor module or a callable (agents) -> (edge [n], delta [n, 3]); with "
+        "TorchRL actor module or a callable (agents) -> (edge (n,), delta (n, 3)); with "
         "--policy-arg, a factory ATTR(ARG) returning one (docs/algorithms.md).",
         show_default=False,
     ),
