@@ -12,6 +12,10 @@ Starts (:data:`STARTS`):
 * ``"chordal"``: chordal relaxation + translation recovery
   (:func:`popbench.solvers.chordal.chordal_initialisation`).
 * ``"given"``: the poses the graph already holds (a file's estimate, or a caller's).
+
+A graph with ``FIX`` poses (``PoseGraph.fixed``) keeps them: an odometry or chordal estimate is
+moved rigidly so that the first fixed pose is at the file's value, and every fixed pose is set
+to the file's value bit for bit (:func:`anchored`).
 """
 
 from __future__ import annotations
@@ -44,12 +48,27 @@ def initial_estimate(graph: PoseGraph, start: str) -> np.ndarray:
     ``graph``; a new array (never ``graph.poses`` itself)."""
     check_start(start)
     if start == "odometry":
-        return graph.odometry_initial()
+        return anchored(graph, graph.odometry_initial(), graph.poses)
     if start == "chordal":
         from popbench.solvers.chordal import chordal_initialisation
 
-        return chordal_initialisation(graph)
+        return anchored(graph, chordal_initialisation(graph), graph.poses)
     return np.array(graph.poses, dtype=np.float64)
+
+
+def anchored(graph: PoseGraph, estimate: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``estimate`` ``(N, 3)`` with ``graph``'s ``FIX`` poses at ``values`` ``(N, 3)`` (the
+    file's poses): the whole estimate moved rigidly to put the first fixed pose there, then every
+    fixed pose copied bit for bit. ``estimate`` itself where the graph has no ``FIX`` pose."""
+    if graph.fixed is None or len(graph.fixed) == 0:
+        return estimate
+    from popbench import se2
+
+    first = int(graph.fixed[0])
+    motion = se2.compose(values[first], se2.inverse(estimate[first]))
+    moved = se2.compose(motion[None, :], estimate)
+    moved[graph.fixed] = values[graph.fixed]
+    return moved
 
 
 def with_start(problem_or_graph: GraphOrProblem, start: str) -> GraphOrProblem:

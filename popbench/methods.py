@@ -10,10 +10,12 @@ checkpoint its results depend on, its capabilities. Adding a method = one solve 
 record in :data:`METHODS` (+ tests); nothing else names methods.
 
 Never worse than the start: :func:`get_method` hands out every solve function wrapped by
-:func:`never_worse`, so no registered method returns an estimate whose F (eq. 1) is above F of
-the start it was given — it returns the start instead and says so in ``extras["never_worse"]``.
-On a problem with injected outliers the rule is not applied (F counts the outliers' residuals,
-which a robust method rightly leaves large); docs/never_worse.md has the choice.
+:func:`never_worse`, so no registered method returns an estimate worse than the start it was
+given — on F (eq. 1), or on the cost it minimised where that is chi2 or a robust cost (its
+:class:`~popbench.status.Status`) — it returns the start instead and says so in
+``extras["never_worse"]``. On a problem with injected outliers the rule is not applied;
+docs/never_worse.md has the choice. The wrapper also gives every Result its ``status`` and holds
+the graph's ``FIX`` poses (:func:`hold_fixed`).
 """
 
 from __future__ import annotations
@@ -29,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from popbench import objective
-from popbench.errors import ValueRangeError
+from popbench import objective, se2
+from popbench.errors import PopbenchError, ValueRangeError
+from popbench.status import Status, measure, settled
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +78,9 @@ class Result:
         inlier_mask: ``(M,)`` bool, False where the method flags an edge as an outlier, or None.
         messages: poses exchanged between robots over the run.
         extras: method-specific figures (certificate, restarts, ...).
+        status: where it stopped (:class:`~popbench.status.Status`); a method that sets none
+            gets one from :func:`never_worse` (its ``history_objective`` minimised, converged
+            by :func:`~popbench.status.settled`).
     """
 
     poses: np.ndarray
@@ -90,6 +96,7 @@ class Result:
     extras: dict[str, Any] = dataclasses.field(default_factory=dict)
     history_s: np.ndarray | None = None
     history_objective: str = "F"
+    status: Status | None = None
 
 
 Method = Callable[..., Result]
@@ -124,6 +131,8 @@ class MethodRecord:
             Result on the same problem with the same options (None: it computes it first), and
             reports ``wall_s`` / ``parallel_s`` as that Result's plus its refinement's [s]; the
             harness passes the refined method's cached cell (:mod:`popbench.harness.refining`).
+        holds_fixed: it holds any set of poses fixed (the graph's ``FIX`` poses); the others
+            hold one (the gauge) by a rigid motion of their answer and refuse more.
         options: ``"module:Class"`` of a dataclass whose fields are options its solve takes
             through ``**options`` besides its named parameters (so that methods sharing options
             declare them once: cc-pgo's and ml-pgo's derive from
@@ -143,6 +152,7 @@ class MethodRecord:
     episodic: bool = False
     refines: str | None = None
     options: str | None = None
+    holds_fixed: bool = False
 
     @property
     def training_seeds(self) -> range:
@@ -190,9 +200,14 @@ ACTOR_SEED_CHECKPOINTS = tuple(
 METHODS: dict[str, MethodRecord] = {
     record.name: record
     for record in (
-        MethodRecord("lm", "popbench.solvers.lm:solve", "LM", centralised=True),
+        MethodRecord("lm", "popbench.solvers.lm:solve", "LM", centralised=True, holds_fixed=True),
         MethodRecord(
-            "gnc", "popbench.solvers.gnc:solve", "GNC", has_inlier_mask=True, centralised=True
+            "gnc",
+            "popbench.solvers.gnc:solve",
+            "GNC",
+            has_inlier_mask=True,
+            centralised=True,
+            holds_fixed=True,
         ),
         MethodRecord(
             "cc-pgo", "baselines.cc_pgo:solve", "CC-PGO", options="baselines.cc_pgo:Options"
@@ -283,45 +298,105 @@ def get_method(name: str) -> Method:
     """The ``solve`` function registered under ``name``, wrapped by :func:`never_worse`."""
     record = method_record(name)
     try:
-        return never_worse(load_object(record.solve))
+        return never_worse(load_object(record.solve), record)
     except ModuleNotFoundError as error:
         raise ValueRangeError("method", name, f"an implemented method ({error})") from None
 
 
-def never_worse(solve: Method) -> Method:
+def never_worse(solve: Method, record: MethodRecord | None = None) -> Method:
     """``solve`` (same signature) returning the problem's start instead of its estimate where
-    the estimate's F is above F of the start, ``problem.graph.poses``.
-
-    ``extras["never_worse"]`` says which was returned: ``"method"``, ``"start"`` (then
-    ``extras["F_method"]`` is the estimate's F, and the last ``history`` entry the start's cost
-    in ``history_objective`` units; times, iterations and the inlier mask stay the method's), or
-    ``"not applied"`` on a problem with injected outliers (``problem.outlier_mask`` flags some
-    edge), where F counts the outliers' residuals (module docstring)."""
+    the estimate is worse than the start, ``problem.graph.poses`` (:func:`keep_better`), its
+    ``status`` filled in where the method set none, and the graph's ``FIX`` poses held
+    (:func:`hold_fixed`; ``record`` says whether the method holds them itself)."""
 
     @functools.wraps(solve)
     def guarded(problem: Any, *args: Any, **kwargs: Any) -> Result:
+        holds = record is not None and record.holds_fixed
+        fixed = check_fixed(problem.graph, holds, "" if record is None else record.name)
         result = solve(problem, *args, **kwargs)
+        if fixed is not None and not holds:
+            result = hold_fixed(problem.graph, result, fixed)
+        if result.status is None:
+            result.status = measure(
+                problem.graph,
+                result.poses,
+                result.history_objective,
+                settled(result.history),
+                result.iterations,
+            )
         return keep_better(problem, result)
 
     return guarded
 
 
+def check_fixed(graph: Any, holds: bool, method: str) -> int | None:
+    """The one pose a method that cannot hold poses fixed must hold as its gauge (the graph's
+    single ``FIX`` pose other than vertex 0), or None; PopbenchError for more than one ``FIX``
+    pose where the method does not hold them (``holds``)."""
+    fixed = getattr(graph, "fixed", None)
+    if fixed is None or holds or (len(fixed) == 1 and int(fixed[0]) == 0):
+        return None
+    if len(fixed) == 1:
+        return int(fixed[0])
+    raise PopbenchError(
+        f"method {method} cannot hold {len(fixed)} FIX poses fixed (it holds one, the gauge): "
+        "use lm or gnc, or keep one FIX line"
+    )
+
+
+def hold_fixed(graph: Any, result: Result, vertex: int) -> Result:
+    """``result`` moved rigidly so that pose ``vertex`` is at the start's value bit for bit (its
+    gauge; every cost is invariant under a rigid motion of all poses)."""
+    target = graph.poses[vertex]
+    motion = se2.compose(target, se2.inverse(result.poses[vertex]))
+    poses = se2.compose(motion[None, :], result.poses)
+    poses[vertex] = target
+    return dataclasses.replace(result, poses=poses)
+
+
 def keep_better(problem: Any, result: Result) -> Result:
-    """``result``, or the start of ``problem`` (a DistributedProblem) where ``result.F`` is above
-    the start's F (:func:`never_worse` for the extras it writes)."""
+    """``result``, or the start of ``problem`` (a DistributedProblem) where ``result`` is worse:
+    on the cost it minimised (``result.status``) for a robust method or one minimising chi2,
+    else on F (eq. 1; the F_chordal family is judged on F, its target).
+
+    ``extras["never_worse"]`` says which was returned: ``"method"``, ``"start"`` (then
+    ``extras["F_method"]`` is the estimate's F, ``extras["never_worse_cost"]`` the cost compared,
+    and the last ``history`` entry the start's cost in ``history_objective`` units; times,
+    iterations, the inlier mask and ``status`` stay the method's: where it stopped), or ``"not
+    applied"`` on a problem with injected outliers (``problem.outlier_mask`` flags some edge)."""
     mask = getattr(problem, "outlier_mask", None)
     if mask is not None and bool(np.any(mask)):
         result.extras["never_worse"] = "not applied"
         return result
     start = problem.graph.poses
     costs = objective.evaluate(problem.graph, start)
-    if not result.F > costs.F:
+    status = result.status
+    own = status is not None and (status.robust is not None or status.objective == "chi2")
+    if own:
+        worse, compared = status.cost > status.start_cost, _cost_name(status)
+    else:
+        worse, compared = result.F > costs.F, "F"
+    if not worse:
         result.extras["never_worse"] = "method"
         return result
     history = np.array(result.history, dtype=float, copy=True)
     if history.size:
-        history[-1] = costs.F_chordal if result.history_objective == "F_chordal" else costs.F
-    extras = {**result.extras, "never_worse": "start", "F_method": result.F}
+        history[-1] = getattr(costs, result.history_objective)
+    extras = {
+        **result.extras,
+        "never_worse": "start",
+        "F_method": result.F,
+        "never_worse_cost": compared,
+    }
     return dataclasses.replace(
-        result, poses=np.array(start, copy=True), **costs._asdict(), history=history, extras=extras
+        result,
+        poses=np.array(start, copy=True),
+        **costs._asdict(),
+        history=history,
+        extras=extras,
     )
+
+
+def _cost_name(status: Status) -> str:
+    """``"chi2"``, or ``"tls(F)"`` for a robust kernel over a base cost."""
+    return status.objective if status.robust is None else f"{status.robust}({status.objective})"

@@ -12,7 +12,10 @@
 * ``chi2``: g2o's EDGE_SE2 error ``e = t2v(z̃⁻¹ ∘ x_p⁻¹ ∘ x_q) = [R(θ̃)ᵀ r_t, r_θ]``, summed as
   ``Σ eᵀ Λ e`` (no ½; GTSAM's ``graph.error`` is ½ of the Logmap version of this).
 
-with ``κ = Λ_θθ`` and ``τ = 2 / tr(Λ_tt⁻¹)`` (SE-Sync / DPGO / MM-PGO weights).
+with ``κ = Λ_θθ`` and ``τ = 2 / tr(Λ_tt⁻¹)`` (SE-Sync / DPGO / MM-PGO weights). ``F`` is
+``chi2`` with each information replaced by ``diag(τ, τ, κ)``; :func:`anisotropy` measures how far
+a file's information is from that (docs/solve.md). :func:`linearisation` and :func:`gradient`
+serve each of the three costs (:data:`COSTS`).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from popbench.graph import PoseGraph
 
 # J = R(π/2); dR(θ)/dθ = R(θ) J.
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+COSTS = ("F", "F_chordal", "chi2")
 
 Array = TypeVar("Array")  # np.ndarray or torch.Tensor: edge_costs uses only elementwise ops
 
@@ -148,11 +153,79 @@ def linearise(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisatio
     return Linearisation(errors, jac_tail, jac_head)
 
 
-def gradient(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
-    """``∇F`` with respect to the poses, ``(N, 3)`` (``2 Jᵀ e``, scattered to vertices)."""
+def linearise_chi2(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisation:
+    """Whitened g2o errors ``Lᵀ e`` (``Λ = L Lᵀ``, Cholesky) and their Jacobians, so that
+    ``chi2 = Σ_e ‖Lᵀ e_e‖²`` with the full 3×3 information, cross terms included.
+
+    ``e = A r`` with ``A = diag(R(θ̃)ᵀ, 1)`` and ``r`` the residuals of eq. 1, whose Jacobians
+    are those of :func:`linearise` before whitening.
+    """
+    poses = graph.poses if poses is None else poses
+    r = residuals(graph, poses)
+    theta_p = poses[graph.tails, 2]
+    rot_t = np.swapaxes(se2.rotation(theta_p), -1, -2)  # R_pᵀ, (M, 2, 2)
+    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
+    d_theta_p = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
+    m = graph.num_edges
+    jac_tail = np.zeros((m, 3, 3))
+    jac_head = np.zeros((m, 3, 3))
+    jac_tail[:, :2, :2] = -rot_t
+    jac_tail[:, :2, 2] = d_theta_p
+    jac_tail[:, 2, 2] = -1.0
+    jac_head[:, :2, :2] = rot_t
+    jac_head[:, 2, 2] = 1.0
+    whiten = np.zeros((m, 3, 3))  # Lᵀ A
+    whiten[:, :2, :2] = np.swapaxes(se2.rotation(graph.measurements[:, 2]), -1, -2)
+    whiten[:, 2, 2] = 1.0
+    whiten = np.swapaxes(np.linalg.cholesky(graph.information), -1, -2) @ whiten
+    return Linearisation(np.einsum("mij,mj->mi", whiten, r), whiten @ jac_tail, whiten @ jac_head)
+
+
+def linearisation(graph: PoseGraph, poses: np.ndarray, cost: str = "F") -> Linearisation:
+    """Whitened residuals and Jacobians of one of :data:`COSTS`: ``cost = Σ_e ‖errors_e‖²``.
+
+    ``"F"``: :func:`linearise`. ``"chi2"``: :func:`linearise_chi2`. ``"F_chordal"``: the rotation
+    residual of ``F`` replaced by ``2√(2κ) sin(r_θ/2)`` (``4κ(1 − cos r_θ)`` squared), whose
+    derivative is ``√2 cos(r_θ/2) · d(√κ r_θ)``.
+    """
+    if cost == "chi2":
+        return linearise_chi2(graph, poses)
     lin = linearise(graph, poses)
-    g_tail = 2.0 * np.einsum("mij,mi->mj", lin.jac_tail, lin.errors)
-    g_head = 2.0 * np.einsum("mij,mi->mj", lin.jac_head, lin.errors)
+    return chordal_rotation(lin, graph.information) if cost == "F_chordal" else lin
+
+
+def chordal_rotation(lin: Linearisation, information: np.ndarray) -> Linearisation:
+    """``F``'s linearisation (:func:`linearise`) turned into ``F_chordal``'s (see
+    :func:`linearisation`)."""
+    kappa, _ = weights(information)
+    half_angle = 0.5 * lin.errors[:, 2] / np.sqrt(kappa)  # r_θ / 2
+    errors = lin.errors.copy()
+    errors[:, 2] = 2.0 * np.sqrt(2.0 * kappa) * np.sin(half_angle)
+    factor = np.sqrt(2.0) * np.cos(half_angle)[:, None]
+    jac_tail, jac_head = lin.jac_tail.copy(), lin.jac_head.copy()
+    jac_tail[:, 2] *= factor
+    jac_head[:, 2] *= factor
+    return Linearisation(errors, jac_tail, jac_head)
+
+
+def edge_squares(graph: PoseGraph, poses: np.ndarray, cost: str = "F") -> np.ndarray:
+    """Each edge's term of ``cost`` (one of :data:`COSTS`), ``(M,)`` (dimensionless)."""
+    return np.sum(linearisation(graph, poses, cost).errors ** 2, axis=1)
+
+
+def gradient(
+    graph: PoseGraph,
+    poses: np.ndarray | None = None,
+    cost: str = "F",
+    edge_weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """``∇C`` with respect to the poses, ``(N, 3)`` (``2 Jᵀ e``, scattered to vertices), for
+    ``C = Σ_e w_e ‖errors_e‖²`` of ``cost`` (:func:`linearisation`; ``w = 1`` by default).
+    Units: the cost's per metre (x, y) and per radian (θ)."""
+    lin = linearisation(graph, graph.poses if poses is None else poses, cost)
+    errors = lin.errors if edge_weights is None else lin.errors * edge_weights[:, None]
+    g_tail = 2.0 * np.einsum("mij,mi->mj", lin.jac_tail, errors)
+    g_head = 2.0 * np.einsum("mij,mi->mj", lin.jac_head, errors)
     n = graph.num_poses
     return np.column_stack(
         [
@@ -160,3 +233,19 @@ def gradient(graph: PoseGraph, poses: np.ndarray | None = None) -> np.ndarray:
             for k in range(3)
         ]
     )
+
+
+def cost_value(graph: PoseGraph, poses: np.ndarray, cost: str = "F") -> float:
+    """The value of one of :data:`COSTS` at ``poses``."""
+    return {"F": objective, "F_chordal": chordal_objective, "chi2": chi2}[cost](graph, poses)
+
+
+def anisotropy(information: np.ndarray) -> np.ndarray:
+    """Per edge, how unevenly ``F`` weighs residuals against the full information, ``(M,)``:
+    ``λ_max / λ_min`` of ``D^{-1/2} Λ D^{-1/2}`` with ``D = diag(τ, τ, κ)``, ``F``'s stand-in
+    for ``Λ``. 1 where ``Λ = D`` (then ``chi2 ≡ F`` for that edge); an edge's ``chi2`` term lies
+    between ``λ_min`` and ``λ_max`` times its ``F`` term for any residual."""
+    kappa, tau = weights(information)
+    scale = 1.0 / np.sqrt(np.stack([tau, tau, kappa], axis=1))
+    eigenvalues = np.linalg.eigvalsh(information * scale[:, :, None] * scale[:, None, :])
+    return eigenvalues[:, -1] / eigenvalues[:, 0]

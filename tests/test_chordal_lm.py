@@ -144,7 +144,7 @@ def test_solve_returns_a_consistent_result(small_graph) -> None:
         objective.objective(small_graph, chordal_initialisation(small_graph))
     )
     assert result.parallel_s == result.wall_s > 0.0
-    assert result.extras["converged"]
+    assert result.status.converged
 
 
 def test_solve_respects_the_iteration_budget_and_the_inits(small_graph) -> None:

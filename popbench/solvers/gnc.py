@@ -1,8 +1,9 @@
 """Graduated non-convexity (GNC; Yang, Antonante, Tzoumas & Carlone, RA-L 2020) on the project's
 sparse LM: the centralised robust reference (method ``"gnc"``), the floor of Table II.
 
-Robust cost over the whitened residuals of eq. 1 (:func:`popbench.objective.linearise`),
-``r_e² = ‖e_e‖² = κ_e r_θ² + τ_e ‖r_t‖²`` (dimensionless)::
+Robust cost over the whitened residuals of the chosen cost (``objective``: eq. 1,
+:func:`popbench.objective.linearise`, ``r_e² = ‖e_e‖² = κ_e r_θ² + τ_e ‖r_t‖²``; or g2o's
+``chi2``, ``r_e² = e_eᵀ Λ_e e_e`` with the full information; both dimensionless)::
 
     min_x Σ_e ρ(r_e²),   TLS: ρ(r²) = min(r², c̄²)   GM: ρ(r²) = c̄² r² / (c̄² + r²)
 
@@ -64,9 +65,11 @@ from popbench import objective
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
+from popbench.initial import anchored
 from popbench.methods import Budget, Result
 from popbench.solvers.chordal import chordal_initialisation
-from popbench.solvers.lm import NormalEquations, solve_graph
+from popbench.solvers.lm import OBJECTIVES, NormalEquations, solve_graph
+from popbench.status import Status, free_gradient_norm
 
 SURROGATES = ("tls", "gm")
 INNER_STARTS = ("best", "problem", "chordal")
@@ -80,9 +83,10 @@ WEIGHT_TOLERANCE = 1e-4
 ODOMETRY_KINDS = (EdgeKind.ODOMETRY, EdgeKind.INTER_RELATIVE)
 
 
-def squared_residuals(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
-    """``r_e² = ‖e_e‖²`` of eq. 1 per edge, ``(M,)`` (dimensionless)."""
-    return np.sum(objective.linearise(graph, poses).errors ** 2, axis=1)
+def squared_residuals(graph: PoseGraph, poses: np.ndarray, cost: str = "F") -> np.ndarray:
+    """``r_e² = ‖e_e‖²`` of ``cost`` (``"F"``, eq. 1, or ``"chi2"``) per edge, ``(M,)``
+    (dimensionless)."""
+    return objective.edge_squares(graph, poses, cost)
 
 
 def initial_mu(surrogate: str, max_squared: float, threshold: float = THRESHOLD) -> float:
@@ -122,9 +126,11 @@ def solve(
     inner_iterations: int = 100,
     mu_step: float = MU_STEP,
     inner_tolerance: float = INNER_TOLERANCE,
+    objective: str = "F",
     **_: object,
 ) -> Result:
-    """Method ``"gnc"``: centralised GNC (module docstring), robots ignored.
+    """Method ``"gnc"``: centralised GNC (module docstring), robots ignored, the graph's ``FIX``
+    poses (or vertex 0) held fixed.
 
     Args:
         problem: the problem; its graph may hold outliers; ``problem.graph.poses`` is the
@@ -141,6 +147,8 @@ def solve(
         mu_step: the factor μ moves by per round (> 1).
         inner_tolerance: relative cost decrease that ends an inner solve (the non-robust one and
             each round's; the final polish uses LM's default, 1e-10).
+        objective: the cost whose edge terms the kernel takes: ``"F"`` (eq. 1; the tables) or
+            ``"chi2"`` (full information; ``popbench solve``'s default).
         _: options of other methods (``seed``, ...), ignored: GNC is deterministic.
 
     Returns:
@@ -149,8 +157,12 @@ def solve(
         (the last entry after the final polish),
         ``extras``: ``weights`` (``(M,)``), ``mu`` per round, ``rounds``, ``lm_steps``,
         ``converged``, ``surrogate``, ``threshold``, ``inner_start`` (the start kept),
-        ``robust_cost``; ``wall_s`` covers both runs for ``"best"``.
+        ``robust_cost``; ``wall_s`` covers both runs for ``"best"``. ``status``: the robust
+        cost ``Σ_e ρ(r_e²)`` (odometry edges: ``r_e²``) at the result and at the problem's start,
+        and its gradient norm (``ρ'(r²)``-weighted) at the result.
     """
+    if objective not in OBJECTIVES:
+        raise ValueRangeError("gnc objective", objective, " | ".join(OBJECTIVES))
     if surrogate not in SURROGATES:
         raise ValueRangeError("gnc surrogate", surrogate, " | ".join(SURROGATES))
     if inner_start not in INNER_STARTS:
@@ -166,6 +178,7 @@ def solve(
     starts = ("problem", "chordal") if inner_start == "best" else (inner_start,)
     structure = NormalEquations(problem.graph)  # one sparse pattern and order for every solve
     options = (surrogate, threshold, warm_start, inner_iterations, mu_step, inner_tolerance)
+    options += (objective,)
     results = [_solve_from(problem, budget, start, structure, *options) for start in starts]
     result = min(results, key=lambda r: r.extras["robust_cost"])
     result.wall_s = result.parallel_s = time.perf_counter() - started
@@ -183,22 +196,26 @@ def _solve_from(
     inner_iterations: int,
     mu_step: float,
     inner_tolerance: float,
+    cost: str,
 ) -> Result:
     """GNC from one inner start (``"problem"`` or ``"chordal"``); see :func:`solve`."""
     graph = problem.graph
     started = time.perf_counter()
-    start = chordal_initialisation(graph) if inner_start == "chordal" else graph.poses
+    start = graph.poses
+    if inner_start == "chordal":
+        start = anchored(graph, chordal_initialisation(graph), graph.poses)
     known = np.isin(graph.kinds, np.array(ODOMETRY_KINDS, dtype=np.int8))
     weights = np.ones(graph.num_edges)
     inner = {
         "structure": structure,
         "relative_tolerance": inner_tolerance,
         "decrement_tolerance": inner_tolerance,
+        "cost": cost,
     }
     outcome = solve_graph(graph, start, inner_iterations, **inner)
     poses, lm_steps = outcome.poses, outcome.iterations
     history, mus = [outcome.F], []
-    squared = squared_residuals(graph, poses)
+    squared = squared_residuals(graph, poses, cost)
     unknown = ~known
     mu = initial_mu(surrogate, float(squared[unknown].max(initial=0.0)), threshold)
     converged = mu <= 0.0
@@ -210,19 +227,21 @@ def _solve_from(
         origin = poses if warm_start else start
         outcome = solve_graph(graph, origin, inner_iterations, edge_weights=weights, **inner)
         poses, lm_steps = outcome.poses, lm_steps + outcome.iterations
-        squared = squared_residuals(graph, poses)
+        squared = squared_residuals(graph, poses, cost)
         history.append(outcome.F)
         mus.append(mu)
         budget.round_done(len(mus))
-        cost = float(np.sum(weights * squared))
-        if _done(surrogate, mu, weights[unknown], cost, previous_cost):
+        weighted = float(np.sum(weights * squared))
+        if _done(surrogate, mu, weights[unknown], weighted, previous_cost):
             converged = True
             break
-        mu, previous_cost = next_mu(surrogate, mu, mu_step), cost
+        mu, previous_cost = next_mu(surrogate, mu, mu_step), weighted
     # polish: the last estimate to LM's own tolerance at the final weights
-    outcome = solve_graph(graph, poses, inner_iterations, edge_weights=weights, structure=structure)
+    outcome = solve_graph(
+        graph, poses, inner_iterations, edge_weights=weights, structure=structure, cost=cost
+    )
     poses, lm_steps = outcome.poses, lm_steps + outcome.iterations
-    squared = squared_residuals(graph, poses)
+    squared = squared_residuals(graph, poses, cost)
     history[-1] = outcome.F
     if surrogate == "tls":
         inlier = weights >= 0.5
@@ -239,6 +258,10 @@ def _solve_from(
         iterations=len(mus),
         history=np.array(history),
         inlier_mask=inlier,
+        history_objective=cost,
+        status=robust_status(
+            graph, poses, known, (surrogate, threshold, max(mu, 1.0)), cost, converged, len(mus)
+        ),
         extras={
             "weights": weights,
             "mu": np.array(mus),
@@ -250,6 +273,44 @@ def _solve_from(
             "inner_start": inner_start,
             "robust_cost": robust_cost(surrogate, squared, threshold, max(mu, 1.0)),
         },
+    )
+
+
+def robust_status(
+    graph: PoseGraph,
+    poses: np.ndarray,
+    known: np.ndarray,
+    kernel: tuple[str, float, float],
+    cost: str,
+    converged: bool,
+    rounds: int,
+) -> Status:
+    """The :class:`~popbench.status.Status` of GNC's answer: ``C = Σ_known r_e² + Σ_other
+    ρ(r_e²)`` (``kernel`` = ``(surrogate, c̄², μ)``, :func:`robust_cost`) at ``poses`` and at
+    the problem's start, and ``‖∇C‖_∞`` with ``∇C = Σ_e ρ'(r_e²) ∇r_e²`` (TLS: ``ρ' = 1``
+    below ``c̄²``, else 0; GM: the GNC weight at μ)."""
+
+    surrogate, threshold, mu = kernel
+
+    def value(squared: np.ndarray) -> float:
+        robust = robust_cost(surrogate, squared[~known], threshold, mu)
+        return float(np.sum(squared[known])) + robust
+
+    squared = squared_residuals(graph, poses, cost)
+    slopes = (
+        (squared < threshold).astype(float)
+        if surrogate == "tls"
+        else (gnc_weights(surrogate, squared, mu, threshold))
+    )
+    slopes[known] = 1.0
+    return Status(
+        objective=cost,
+        converged=converged,
+        rounds=rounds,
+        gradient_norm=free_gradient_norm(graph, poses, cost, slopes),
+        cost=value(squared),
+        start_cost=value(squared_residuals(graph, graph.poses, cost)),
+        robust=surrogate,
     )
 
 

@@ -54,8 +54,10 @@ from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.methods import Budget, Result
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.status import Status
 
 ROTATION_COSTS = ("geodesic", "chordal")
+OBJECTIVES = ("F", "chi2")  # what ``lm`` and ``gnc`` minimise (docs/solve.md)
 
 _INITIAL_DAMPING = 1e-8
 _SHRINK_FLOOR = 0.1
@@ -93,18 +95,29 @@ class LMOutcome(NamedTuple):
         return float(self.history[-1])
 
 
-class NormalEquations:
-    """Sparse structure of the gauge-fixed ``H = JᵀJ`` (``3(N−1)`` square), built once per graph.
+def fixed_poses(graph: PoseGraph) -> np.ndarray:
+    """The internal indices of the poses held fixed, ``(K,)`` int64: the graph's ``FIX`` poses,
+    or vertex 0 (the gauge) when it has none."""
+    return np.array([0] if graph.fixed is None else graph.fixed, dtype=np.int64)
 
-    Free pose ``i`` owns the renumbered coordinates ``3·position[i] + (0, 1, 2)``, ``position``
-    a fill-reducing order. Per edge the four 3×3 blocks ``(p,p), (p,q), (q,p), (q,q)`` of ``H``
-    go to fixed CSC slots; entries touching pose 0 go to one extra, discarded slot.
+
+class NormalEquations:
+    """Sparse structure of the gauge-fixed ``H = JᵀJ`` (``3(N−K)`` square), built once per graph.
+
+    The ``K`` fixed poses (:func:`fixed_poses`: vertex 0, or the graph's ``FIX`` poses) have no
+    columns. Free pose ``i`` owns the renumbered coordinates ``3·position[i] + (0, 1, 2)``,
+    ``position`` a fill-reducing order. Per edge the four 3×3 blocks ``(p,p), (p,q), (q,p),
+    (q,q)`` of ``H`` go to fixed CSC slots; entries touching a fixed pose go to one extra,
+    discarded slot.
     """
 
     def __init__(self, graph: PoseGraph) -> None:
-        position = np.full(graph.num_poses, -1, dtype=np.int64)  # pose 0: -1 (fixed)
-        position[1:] = _vertex_order(graph)
-        size = 3 * (graph.num_poses - 1)
+        free = np.ones(graph.num_poses, dtype=bool)
+        free[fixed_poses(graph)] = False
+        self.free = free
+        position = np.full(graph.num_poses, -1, dtype=np.int64)  # fixed poses: -1
+        position[free] = _vertex_order(graph, free)
+        size = 3 * int(free.sum())
         block_rows = position[np.stack([graph.tails, graph.tails, graph.heads, graph.heads], 1)]
         block_cols = position[np.stack([graph.tails, graph.heads, graph.tails, graph.heads], 1)]
         offsets = np.arange(3)
@@ -125,9 +138,9 @@ class NormalEquations:
         self.diagonal_slots = np.searchsorted(unique_keys, diagonal * size + diagonal)
         # Renumbered coordinate k is entry free_dof[k] of the flattened (N, 3) pose array.
         self.free_dof = np.empty(size, dtype=np.int64)
-        self.free_dof[(3 * position[1:, None] + offsets).ravel()] = np.arange(
-            3, 3 * graph.num_poses
-        )
+        self.free_dof[(3 * position[free, None] + offsets).ravel()] = (
+            3 * np.flatnonzero(free)[:, None] + offsets
+        ).ravel()
         self.edge_dof = np.concatenate([3 * position[graph.tails], 3 * position[graph.heads]])
 
     def hessian_values(self, lin: objective.Linearisation) -> np.ndarray:
@@ -157,22 +170,28 @@ class NormalEquations:
         return sp.csc_matrix((values, self.indices, self.indptr), shape=(self.size, self.size))
 
     def update(self, poses: np.ndarray, step: np.ndarray) -> np.ndarray:
-        """``x + δ`` for ``δ`` in renumbered free coordinates, headings wrapped, ``(N, 3)``."""
+        """``x + δ`` for ``δ`` in renumbered free coordinates, free headings wrapped, ``(N, 3)``;
+        the fixed poses are copied bit for bit."""
         flat = poses.ravel().copy()
         flat[self.free_dof] += step
         moved = flat.reshape(poses.shape)
-        moved[:, 2] = se2.wrap(moved[:, 2])
+        moved[self.free, 2] = se2.wrap(moved[self.free, 2])
         return moved
 
 
-def _vertex_order(graph: PoseGraph) -> np.ndarray:
-    """Position of each free pose ``1..N−1`` in a METIS nested-dissection order, ``(N−1,)``."""
-    num_free = graph.num_poses - 1
-    ends = np.concatenate([graph.tails, graph.heads]) - 1
-    others = np.concatenate([graph.heads, graph.tails]) - 1
-    keep = (ends >= 0) & (others >= 0) & (ends != others)
+def _vertex_order(graph: PoseGraph, free: np.ndarray) -> np.ndarray:
+    """Position of each free pose (``free``: ``(N,)`` bool) in a METIS nested-dissection order,
+    ``(N_free,)``, in vertex order."""
+    num_free = int(free.sum())
+    if num_free == 0:
+        return np.zeros(0, dtype=np.int64)
+    index = np.cumsum(free) - 1  # vertex -> index among the free poses
+    ends = np.concatenate([graph.tails, graph.heads])
+    others = np.concatenate([graph.heads, graph.tails])
+    keep = free[ends] & free[others] & (ends != others)
     adjacency = sp.csr_matrix(
-        (np.ones(int(keep.sum())), (ends[keep], others[keep])), shape=(num_free, num_free)
+        (np.ones(int(keep.sum())), (index[ends[keep]], index[others[keep]])),
+        shape=(num_free, num_free),
     )
     adjacency.sum_duplicates()
     _, new_position = pymetis.nested_dissection(
@@ -184,29 +203,25 @@ def _vertex_order(graph: PoseGraph) -> np.ndarray:
 def _linearise(
     graph: PoseGraph,
     poses: np.ndarray,
-    rotation_cost: str,
+    cost: str,
     sqrt_weights: np.ndarray | None = None,
+    reported: str = "F",
 ) -> tuple[objective.Linearisation, float]:
-    """Whitened residuals and Jacobians of the minimised cost, and ``F`` (eq. 1, unweighted) at
-    ``poses``.
+    """Whitened residuals and Jacobians of the minimised ``cost`` (one of
+    :data:`popbench.objective.COSTS`), and the ``reported`` cost (``"F"`` or ``"chi2"``,
+    unweighted) at ``poses``.
 
-    ``"geodesic"``: ``F`` itself. ``"chordal"``: ``F_chordal``, whose rotation residual is
-    ``4κ(1 − cos r_θ) = (2√(2κ) sin(r_θ/2))²``, derivative ``√2 cos(r_θ/2) · d(√κ r_θ)``.
     ``sqrt_weights`` (``(M,)``, optional) scales each edge's residual and Jacobian rows by
     ``√w_e``, so the minimised cost is ``Σ_e w_e ‖e_e‖²``.
     """
-    lin = objective.linearise(graph, poses)
-    value = float(np.sum(lin.errors**2))
-    if rotation_cost == "chordal":
-        kappa, _ = objective.weights(graph.information)
-        half_angle = 0.5 * lin.errors[:, 2] / np.sqrt(kappa)  # r_θ / 2
-        errors = lin.errors.copy()
-        errors[:, 2] = 2.0 * np.sqrt(2.0 * kappa) * np.sin(half_angle)
-        factor = np.sqrt(2.0) * np.cos(half_angle)[:, None]
-        jac_tail, jac_head = lin.jac_tail.copy(), lin.jac_head.copy()
-        jac_tail[:, 2] *= factor
-        jac_head[:, 2] *= factor
-        lin = objective.Linearisation(errors, jac_tail, jac_head)
+    if reported == "F":
+        lin = objective.linearise(graph, poses)
+        value = float(np.sum(lin.errors**2))
+        if cost == "F_chordal":
+            lin = objective.chordal_rotation(lin, graph.information)
+    else:
+        lin = objective.linearisation(graph, poses, cost)
+        value = float(np.sum(lin.errors**2)) if cost == reported else objective.chi2(graph, poses)
     if sqrt_weights is not None:
         lin = objective.Linearisation(
             lin.errors * sqrt_weights[:, None],
@@ -228,15 +243,18 @@ def solve_graph(
     edge_weights: np.ndarray | None = None,
     structure: NormalEquations | None = None,
     decrement_tolerance: float = 0.0,
+    cost: str = "F",
 ) -> LMOutcome:
-    """Minimise ``F`` (or ``F_chordal``) from ``poses0`` by sparse Levenberg–Marquardt, pose 0
-    fixed; with ``edge_weights`` the weighted cost ``Σ_e w_e ‖e_e‖²`` instead.
+    """Minimise ``F`` (or ``F_chordal``, or ``chi2``) from ``poses0`` by sparse
+    Levenberg–Marquardt, the fixed poses (:func:`fixed_poses`) held at their ``poses0`` values
+    bit for bit; with ``edge_weights`` the weighted cost ``Σ_e w_e ‖e_e‖²`` instead.
 
     Args:
         graph: the pose graph (connected; its own ``poses`` are not used).
         poses0: ``(N, 3)`` start.
         iterations: at most this many LM steps (accepted or rejected).
-        rotation_cost: ``"geodesic"`` minimises ``F`` (eq. 1), ``"chordal"`` ``F_chordal``.
+        rotation_cost: ``"geodesic"`` minimises ``cost``, ``"chordal"`` ``F_chordal`` (a stage
+            towards ``cost``).
         relative_tolerance: stop after an accepted step with ``C − C_new ≤ tol · C``.
         gradient_tolerance: stop when ``‖∇C‖_∞`` over the free poses is at most this (units
             of the cost per metre / radian).
@@ -250,12 +268,17 @@ def solve_graph(
         decrement_tolerance: when > 0, also stop after an accepted step whose predicted next
             decrease with the last factorisation is at most this times the cost (module
             docstring); 0 (default) keeps the plain LM above.
+        cost: ``"F"`` (eq. 1) or ``"chi2"`` (g2o's, full information).
 
     Returns:
-        :class:`LMOutcome` (its ``history`` is always ``F``, eq. 1, unweighted).
+        :class:`LMOutcome` (its ``history`` is always ``cost``, unweighted).
     """
     if rotation_cost not in ROTATION_COSTS:
         raise ValueRangeError("rotation cost", rotation_cost, " | ".join(ROTATION_COSTS))
+    if cost not in OBJECTIVES:
+        raise ValueRangeError("objective", cost, " | ".join(OBJECTIVES))
+    reported = cost
+    minimised = "F_chordal" if rotation_cost == "chordal" else cost
     sqrt_weights = None
     if edge_weights is not None:
         edge_weights = np.asarray(edge_weights, dtype=np.float64)
@@ -266,12 +289,12 @@ def solve_graph(
         sqrt_weights = np.sqrt(edge_weights)
     started = time.perf_counter()
     poses = np.array(poses0, dtype=np.float64)
-    poses[:, 2] = se2.wrap(poses[:, 2])
-    lin, value = _linearise(graph, poses, rotation_cost, sqrt_weights)
-    history, history_s = [value], [time.perf_counter() - started]
-    if graph.num_poses < 2:
-        return LMOutcome(poses, np.array(history), 0, True, 0, 0.0, np.array(history_s))
     normal = NormalEquations(graph) if structure is None else structure
+    poses[normal.free, 2] = se2.wrap(poses[normal.free, 2])
+    lin, value = _linearise(graph, poses, minimised, sqrt_weights, reported)
+    history, history_s = [value], [time.perf_counter() - started]
+    if normal.size == 0:
+        return LMOutcome(poses, np.array(history), 0, True, 0, 0.0, np.array(history_s))
     cost = float(np.sum(lin.errors**2))
     hessian, gradient = normal.hessian_values(lin), normal.gradient(lin)
     damping, growth = _INITIAL_DAMPING, 2.0
@@ -287,7 +310,7 @@ def solve_graph(
         step = -lu.solve(gradient)
         model_decrease = float(-gradient @ step + damping * (step * scale) @ step)
         trial = normal.update(poses, step)
-        trial_lin, trial_value = _linearise(graph, trial, rotation_cost, sqrt_weights)
+        trial_lin, trial_value = _linearise(graph, trial, minimised, sqrt_weights, reported)
         trial_cost = float(np.sum(trial_lin.errors**2))
         if trial_cost < cost:
             gain = (cost - trial_cost) / model_decrease
@@ -333,9 +356,11 @@ def solve(
     chordal_stage: bool = True,
     relative_tolerance: float = 1e-10,
     gradient_tolerance: float = 1e-9,
+    objective: str = "F",
     **_: object,
 ) -> Result:
-    """Method ``"lm"``: centralised sparse LM on the whole graph (robots are ignored).
+    """Method ``"lm"``: centralised sparse LM on the whole graph (robots are ignored), the
+    graph's ``FIX`` poses (or vertex 0) held fixed.
 
     Args:
         problem: the problem; LM starts from its start, ``problem.graph.poses``.
@@ -346,16 +371,22 @@ def solve(
             the same F* on seven and a lower minimum on m3500c (2580.45 vs 4071.18), in fewer
             steps there; ``-o chordal_stage=false`` gives plain LM on ``F``.
         relative_tolerance, gradient_tolerance: stopping tests of :func:`solve_graph`.
+        objective: the cost minimised, ``"F"`` (eq. 1; the tables) or ``"chi2"`` (g2o's, with
+            each edge's full information; ``popbench solve``'s default). docs/solve.md.
         _: options of other methods (``seed``, ...), ignored: LM is deterministic.
 
     Returns:
         :class:`~popbench.methods.Result`; ``parallel_s == wall_s`` (one process),
-        ``history`` = ``F`` per LM step, ``messages == 0``.
+        ``history`` = ``objective`` per LM step (``history_objective``), ``messages == 0``,
+        ``status`` the final stage's stopping test and gradient norm.
     """
+    from popbench.objective import evaluate
+
     budget = Budget() if budget is None else budget
     tolerances = {
         "relative_tolerance": relative_tolerance,
         "gradient_tolerance": gradient_tolerance,
+        "cost": objective,
     }
     graph = problem.graph
     started = time.perf_counter()
@@ -380,7 +411,7 @@ def solve(
         gradient_norm = outcome.gradient_norm
     wall_s = time.perf_counter() - started
     history = np.concatenate(histories)
-    costs = objective.evaluate(graph, poses)
+    costs = evaluate(graph, poses)
     return Result(
         poses=poses,
         **costs._asdict(),  # F, F_chordal, chi2
@@ -388,13 +419,16 @@ def solve(
         parallel_s=wall_s,
         iterations=history.size - 1,
         history=history,
-        extras={
-            "converged": converged,
-            "accepted": accepted,
-            "gradient_norm": gradient_norm,
-            "init": problem.start,
-            "chordal_stage": chordal_stage,
-        },
+        extras={"accepted": accepted, "init": problem.start, "chordal_stage": chordal_stage},
+        history_objective=objective,
+        status=Status(
+            objective=objective,
+            converged=converged,
+            rounds=history.size - 1,
+            gradient_norm=gradient_norm,
+            cost=float(history[-1]),
+            start_cost=float(history[0]),
+        ),
     )
 
 
