@@ -327,22 +327,26 @@ def solve_prop_v2(
     budget: Budget | None = None,
     lm_iterations: int = PROP_V2_LM_ITERATIONS,
     refined: Result | None = None,
+    objective: str = "F",
     **options: object,
 ) -> Result:
     """prop-v2: prop-v1 (with ``options``: seed, checkpoint, device, consensus, …), then
-    `lm_iterations` (75) Levenberg–Marquardt iterations.
+    `lm_iterations` (75) Levenberg–Marquardt iterations on ``objective`` ("F", eq. 1, or "chi2",
+    g2o's with the full information; `status` is the LM's).
 
     `refined`: prop-v1's Result on this problem with these options (the harness passes its
     cached cell, popbench.harness.refining); None runs prop-v1 first. Either way wall_s and
     parallel_s are prop-v1's plus the LM's [s].
     """
+    from popbench.objective import evaluate
     from popbench.solvers.lm import solve_graph
+    from popbench.status import measure
 
     first = refined or solve_prop_v1(problem, budget, **options)
     started = time.perf_counter()
-    refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations)
+    refined = solve_graph(problem.graph, first.poses, iterations=lm_iterations, cost=objective)
     lm_s = time.perf_counter() - started
-    costs = objective.evaluate(problem.graph, refined.poses)
+    costs = evaluate(problem.graph, refined.poses)
     history_s = None
     if first.history_s is not None:  # the last entry is the returned estimate, at parallel_s
         history_s = np.concatenate([first.history_s, first.parallel_s + refined.history_s[1:]])
@@ -363,4 +367,12 @@ def solve_prop_v2(
             "prop_v1_wall_s": first.wall_s,
             "lm_iterations": int(refined.iterations),
         },
+        history_objective=objective,
+        status=measure(
+            problem.graph,
+            refined.poses,
+            objective,
+            refined.converged,
+            first.iterations + int(refined.iterations),
+        ),
     )

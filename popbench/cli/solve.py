@@ -42,7 +42,29 @@ def build_problem(source: str, robots: int, partition: str, seed: int, init: str
     return distributed_problem(source, robots, init, partition, seed)
 
 
-SET_BY_CLI = {"init": "--init"}  # method options the command sets from its own flags
+SET_BY_CLI = {"init": "--init", "objective": "--objective"}  # set from the command's own flags
+OBJECTIVES = ("chi2", "F")
+# Largest per-edge anisotropy (popbench.objective.anisotropy: how unevenly F weighs residuals
+# against the full information, 1 = not at all) below which F and chi2 are the same problem;
+# the registered files are either at 1 (m3500, city10k, w10000) or far above (≥ 3e3 at most).
+ANISOTROPY_NOTE = 1.01
+
+
+def method_objective(method: str, objective: str | None) -> str:
+    """The cost ``method`` will minimise: ``objective`` (``"chi2"`` or ``"F"``), or by default
+    chi2 where the method can minimise it (it takes an ``objective`` option) and F otherwise;
+    a one-line error for chi2 with a method that minimises F only."""
+    from popbench.methods import method_options
+
+    if objective is not None and objective not in OBJECTIVES:
+        raise ValueRangeError("--objective", objective, " or ".join(OBJECTIVES))
+    supports = "objective" in method_options(method)
+    if objective == "chi2" and not supports:
+        raise PopbenchError(
+            f"--objective chi2: {method} minimises F only (paper eq. 1, isotropic weights by "
+            "construction); use --objective F, or lm, gnc, local-lm or prop-v2 for chi2"
+        )
+    return objective or ("chi2" if supports else "F")
 
 
 def check_method_options(method: str, options: dict[str, Any]) -> None:
@@ -137,11 +159,16 @@ def solve_record(
     output: str | Path | None = None,
     trajectory: str | Path | None = None,
     flags: str | Path | None = None,
+    objective: str | None = None,
 ) -> dict[str, Any]:
     """Solve one problem and summarise it as a JSON-ready dict (what ``popbench solve --json``
-    prints). ``options`` are checked by :func:`check_method_options`; ``progress`` (optional)
-    is shown each stage and told of each round. ``output``, ``trajectory`` and ``flags``, when
-    given, are written after the solve (:func:`write_outputs`); their paths are checked first.
+    prints). ``objective``: the cost minimised, :func:`method_objective` (default chi2 where
+    the method supports it); the record's ``objective`` says which, ``anisotropy`` the file's
+    largest per-edge :func:`popbench.objective.anisotropy` and ``status`` where the method
+    stopped (:class:`popbench.status.Status`). ``options`` are checked by
+    :func:`check_method_options`; ``progress`` (optional) is shown each stage and told of each
+    round. ``output``, ``trajectory`` and ``flags``, when given, are written after the solve
+    (:func:`write_outputs`); their paths are checked first.
 
     ``outliers``: for a method that returns an inlier mask, the edges it flags, each
     ``{"edge": index, "i": tail id, "j": head id}`` (the order and ids of the file's edge
@@ -151,7 +178,7 @@ def solve_record(
     method starts from it. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since
     methods differ in what their ``history`` records.
     """
-    from popbench import objective
+    from popbench import objective as costs
     from popbench.initial import check_start
     from popbench.methods import Budget, method_record
 
@@ -161,6 +188,7 @@ def solve_record(
     if seconds is not None and not seconds > 0:
         raise ValueRangeError("--seconds", seconds, "a number > 0")
     check_method_options(method, options or {})
+    cost = method_objective(method, objective)
     check_output_paths(output, trajectory, flags)
     budget = Budget(
         iterations=Budget.iterations if iterations is None else iterations,
@@ -172,6 +200,7 @@ def solve_record(
         progress.stage(f"loading {source}{split}…")
     problem, notes = reading_notes(build_problem, source, robots, partition, seed, init)
     options = dict(options or {})
+    method_kwargs = {**options, "objective": cost} if cost == "chi2" else options
     if progress is not None:
         team = f", {problem.num_robots} robots" if problem.num_robots > 1 else ""
         episode = method_record(method).episodic  # one episode; --iterations does not apply
@@ -180,7 +209,7 @@ def solve_record(
             f"solving {problem.graph.name} with {method}{team}, {rounds}…",
             None if episode else budget.iterations,
         )
-    result = run_method(problem, method, budget, options)
+    result = run_method(problem, method, budget, method_kwargs)
     if progress is not None:
         progress.stage(f"F at the {init} estimate…")
     graph = problem.graph
@@ -192,7 +221,7 @@ def solve_record(
         "partition": partition if problem.num_robots > 1 else None,
         "poses": graph.num_poses,
         "edges": graph.num_edges,
-        "F_init": objective.objective(graph, graph.poses),
+        "F_init": costs.objective(graph, graph.poses),
         "F": float(result.F),
         "F_chordal": float(result.F_chordal),
         "chi2": float(result.chi2),
@@ -202,6 +231,9 @@ def solve_record(
         "history_length": len(result.history),
         "messages": int(result.messages),
         "options": options,
+        "objective": cost,
+        "anisotropy": float(costs.anisotropy(graph.information).max(initial=1.0)),
+        "status": result.status.as_record(),
     }
     record["extras"] = {
         key: value.item() if hasattr(value, "item") else value
@@ -210,7 +242,7 @@ def solve_record(
     }
     record["outliers"] = flagged_edges(graph, result.inlier_mask)
     notes += write_outputs(graph, result, output, trajectory, flags)
-    record["notes"] = notes
+    record["notes"] = notes + stderr_notes(record)
     return record
 
 
@@ -306,6 +338,53 @@ def write_outputs(
     return notes
 
 
+def never_worse_sentence(record: dict[str, Any]) -> str | None:
+    """In words, when the never-worse rule returned the start instead of the method's answer
+    (docs/never_worse.md); None when it kept the answer."""
+    extras = record["extras"]
+    if extras.get("never_worse") != "start":
+        return None
+    compared = extras.get("never_worse_cost", "F")
+    if compared == "F":
+        answer, start = extras["F_method"], record["F_init"]
+    else:
+        answer, start = record["status"]["cost"], record["status"]["start_cost"]
+    return (
+        f"the map returned is the START, not {record['method']}'s answer: its {compared} "
+        f"({answer:.6g}) was above the start's ({start:.6g}) (never-worse rule)"
+    )
+
+
+def stderr_notes(record: dict[str, Any]) -> list[str]:
+    """The solve's own notes (added to the record's ``notes``, one stderr line each): the method
+    did not converge; F was minimised on a file whose information F does not represent
+    (anisotropy above :data:`ANISOTROPY_NOTE`)."""
+    notes = []
+    status = record["status"]
+    if not status["converged"]:
+        notes.append(
+            f"{record['method']}: not converged after {status['rounds']} rounds "
+            f"(‖∇‖ = {status['gradient_norm']:.3g}, {status['objective']} per m or rad)"
+        )
+    if record["objective"] == "F" and record["anisotropy"] > ANISOTROPY_NOTE:
+        notes.append(
+            f"{record['method']} minimised F (paper eq. 1, one isotropic weight per edge), but "
+            f"this file's information is anisotropic (F weighs an edge's residual up to "
+            f"{record['anisotropy']:.3g}× unevenly against it): the map is F's minimiser, not "
+            f"the maximum-likelihood map g2o and GTSAM return (chi2 here {record['chi2']:.6g}; "
+            "lm, gnc, local-lm and prop-v2 minimise chi2, docs/solve.md)"
+        )
+    return notes
+
+
+def _status_text(status: dict[str, Any]) -> str:
+    state = "converged" if status["converged"] else "NOT converged"
+    return (
+        f"{state} after {status['rounds']} rounds, ‖∇{status['objective']}‖ = "
+        f"{status['gradient_norm']:.3g}"
+    )
+
+
 def _print_summary(record: dict[str, Any]) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -313,13 +392,20 @@ def _print_summary(record: dict[str, Any]) -> None:
     table = Table(title=f"{record['method']} on {record['dataset']}", show_header=False)
     table.add_column("quantity")
     table.add_column("value", justify="right")
+    start_returned = never_worse_sentence(record)
     for key, value in record.items():
         if value is None or value == {} or key == "notes":  # notes: one line each on stderr
             continue
         text = f"{value:.6g}" if isinstance(value, float) else str(value)
+        if key == "status":
+            text = _status_text(value)
         if key == "outliers":
             text = f"{len(value)} edges flagged"
+            if start_returned is not None:
+                text += f"; {start_returned}"
         table.add_row(key, text)
+    if record["outliers"] is None and start_returned is not None:
+        table.add_row("map", start_returned)
     Console().print(table)
 
 
@@ -420,6 +506,17 @@ def solve_command(
             show_default=False,
         ),
     ] = None,
+    objective: Annotated[
+        str | None,
+        typer.Option(
+            help="The cost minimised: chi2 (g2o's, each edge's full 3×3 information, what g2o "
+            "and GTSAM minimise; the default for lm, gnc, local-lm and prop-v2) or F (paper "
+            "eq. 1, one isotropic weight per edge; what the tables minimise, and all cc-pgo, "
+            "ml-pgo, mm-pgo and prop-v1 can). They agree where the information is isotropic "
+            "(docs/solve.md).",
+            show_default=False,
+        ),
+    ] = None,
     threads: CommandThreads = 1,
 ) -> None:
     """Solve one pose graph with one method and report F, F_chordal, chi2 and timings.
@@ -440,6 +537,7 @@ def solve_command(
         output=output,
         trajectory=trajectory,
         flags=flags,
+        objective=objective,
     )
     live = SolveProgress(f"loading {source}…") if sys.stderr.isatty() else None
     from popbench.threads import limited_threads

@@ -3,6 +3,8 @@ consensus as prop-v1 (:mod:`popbench.reconcile`).
 
 It is the classical counterpart of prop-v1: the bound a learned local policy is chasing (a
 policy can at best bring each local graph to its own optimum) with the same reconciliation.
+With ``objective="chi2"`` the local solves minimise g2o's χ² (full information); the consensus
+is F's (eq. 1) either way (docs/solve.md).
 """
 
 from __future__ import annotations
@@ -13,12 +15,13 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from popbench import objective
 from popbench.distributed import DistributedProblem
+from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.methods import Budget, Result
 from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
-from popbench.solvers.lm import solve_graph
+from popbench.solvers.lm import OBJECTIVES, solve_graph
+from popbench.status import measure
 
 LOCAL_ITERATIONS = 100
 
@@ -28,6 +31,7 @@ def local_optima(
     iterations: int = LOCAL_ITERATIONS,
     excluded: np.ndarray | None = None,
     starts: list[np.ndarray] | None = None,
+    cost: str = "F",
 ) -> tuple[list[np.ndarray], np.ndarray]:
     """Every robot's local graph solved by LM (its first owned pose fixed).
 
@@ -40,6 +44,7 @@ def local_optima(
             separator copy seen only over an excluded edge) keeps its start.
         starts: one ``(n_r, 3)`` start per robot (e.g. with placed separator copies); default
             the problem's start, ``problem.split()``.
+        cost: the local cost, ``"F"`` (eq. 1) or ``"chi2"``.
 
     Returns:
         ``(local_poses, seconds)``: one ``(n_r, 3)`` optimum per robot (rows in
@@ -51,15 +56,18 @@ def local_optima(
         graph = local.graph
         started = time.perf_counter()
         if excluded is None:
-            local_poses.append(solve_graph(graph, start, iterations).poses)
+            local_poses.append(solve_graph(graph, start, iterations, cost=cost).poses)
         else:
             kept = graph.edge_subset(~excluded[local.edge_ids])
-            local_poses.append(_solve_rooted(kept, np.asarray(start, dtype=float), iterations))
+            start = np.asarray(start, dtype=float)
+            local_poses.append(_solve_rooted(kept, start, iterations, cost))
         seconds[local.robot] = time.perf_counter() - started
     return local_poses, seconds
 
 
-def _solve_rooted(graph: PoseGraph, start: np.ndarray, iterations: int) -> np.ndarray:
+def _solve_rooted(
+    graph: PoseGraph, start: np.ndarray, iterations: int, cost: str = "F"
+) -> np.ndarray:
     """``(N, 3)``: LM on the vertices joined to vertex 0 by ``graph``'s edges (vertex 0 fixed);
     the other vertices keep their ``start``."""
     adjacency = sparse.coo_matrix(
@@ -68,7 +76,7 @@ def _solve_rooted(graph: PoseGraph, start: np.ndarray, iterations: int) -> np.nd
     labels = csgraph.connected_components(adjacency, directed=False)[1]
     rooted = labels == labels[0]
     if rooted.all():
-        return solve_graph(graph, start, iterations).poses
+        return solve_graph(graph, start, iterations, cost=cost).poses
     index = np.cumsum(rooted) - 1  # new ids of the rooted vertices (vertex 0 stays 0)
     keep = rooted[graph.tails]  # an edge with one rooted end has both
     sub = graph.edge_subset(keep)
@@ -80,7 +88,7 @@ def _solve_rooted(graph: PoseGraph, start: np.ndarray, iterations: int) -> np.nd
         robots=None if graph.robots is None else graph.robots[rooted],
     )
     poses = start.copy()
-    poses[rooted] = solve_graph(sub, start[rooted], iterations).poses
+    poses[rooted] = solve_graph(sub, start[rooted], iterations, cost=cost).poses
     return poses
 
 
@@ -90,6 +98,7 @@ def solve(
     local_iterations: int = LOCAL_ITERATIONS,
     consensus: str = DEFAULT_CONSENSUS,
     consensus_iterations: int = 200,
+    objective: str = "F",
     **_: object,
 ) -> Result:
     """Method ``"local-lm"`` (module docstring).
@@ -100,22 +109,29 @@ def solve(
         local_iterations: LM steps at most per robot.
         consensus: one of :data:`popbench.reconcile.CONSENSUS_MODES`.
         consensus_iterations: ADMM iterations at most.
+        objective: the local solves' cost, ``"F"`` (eq. 1) or ``"chi2"``.
 
     Result: ``iterations`` = 1 (one local solve per robot); ``history`` = F at the start, of the
     assembled local optima, and after the consensus; ``parallel_s`` = the slowest robot's LM
     plus the consensus's simulated makespan; ``history_s`` = 0, the slowest robot's LM, and
     ``parallel_s``; ``extras``: F_local, F_aligned and the consensus's
-    iterations.
+    iterations. ``status``: ``objective`` at the result, converged when the consensus met its
+    tolerance.
     """
+    from popbench.objective import evaluate
+    from popbench.objective import objective as eq1
+
     del budget
     check_consensus(consensus)
+    if objective not in OBJECTIVES:
+        raise ValueRangeError("local-lm objective", objective, " | ".join(OBJECTIVES))
     started = time.perf_counter()
     graph = problem.graph
-    f_init = objective.objective(graph, graph.poses)
-    local_poses, seconds = local_optima(problem, local_iterations)
+    f_init = eq1(graph, graph.poses)
+    local_poses, seconds = local_optima(problem, local_iterations, cost=objective)
     local_s = float(seconds.max(initial=0.0))
     reconciled = reconcile(problem, local_poses, consensus, consensus_iterations)
-    costs = objective.evaluate(graph, reconciled.poses)
+    costs = evaluate(graph, reconciled.poses)
     return Result(
         poses=reconciled.poses,
         **costs._asdict(),  # F, F_chordal, chi2
@@ -132,4 +148,5 @@ def solve(
             "consensus_iterations": reconciled.iterations,
             "consensus_converged": reconciled.converged,
         },
+        status=measure(graph, reconciled.poses, objective, reconciled.converged, 1),
     )
