@@ -93,7 +93,7 @@ def test_gnc_flags_the_hand_made_outliers(surrogate, rng):
     problem = DistributedProblem.from_graph(graph, 1, outlier_mask=outlier)
     result = get_method("gnc")(problem, Budget(iterations=100), surrogate=surrogate)
     np.testing.assert_array_equal(~result.inlier_mask, outlier)
-    assert result.extras["converged"] and result.iterations == result.extras["mu"].size
+    assert result.status.converged and result.iterations == result.extras["mu"].size
     # the inliers at their least-squares optimum without the outliers (GM keeps a small weight
     # (c̄² / r²)² on each outlier, so its estimate is pulled by a few mm)
     clean = solve_graph(graph, graph.poses, 50, edge_weights=(~outlier).astype(float))
@@ -153,7 +153,7 @@ def test_fast_path_matches_a_straightforward_gnc(rng):
 def test_gnc_without_outliers_is_least_squares(small_graph):
     problem = DistributedProblem.from_graph(small_graph, 1)
     result = gnc.solve(problem, inner_start="problem")
-    assert result.inlier_mask.all() and result.iterations == 0 and result.extras["converged"]
+    assert result.inlier_mask.all() and result.iterations == 0 and result.status.converged
     np.testing.assert_allclose(result.poses, solve_graph(small_graph, small_graph.poses).poses)
     with pytest.raises(ValueRangeError):
         gnc.solve(problem, surrogate="huber")

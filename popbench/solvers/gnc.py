@@ -153,11 +153,11 @@ def solve(
 
     Returns:
         :class:`~popbench.methods.Result`: ``inlier_mask`` from the final weights,
-        ``history`` = ``F`` (eq. 1, over every edge) after the non-robust solve and each round
-        (the last entry after the final polish),
+        ``history`` = ``objective`` (over every edge, unweighted) after the non-robust solve and
+        each round (the last entry after the final polish),
         ``extras``: ``weights`` (``(M,)``), ``mu`` per round, ``rounds``, ``lm_steps``,
-        ``converged``, ``surrogate``, ``threshold``, ``inner_start`` (the start kept),
-        ``robust_cost``; ``wall_s`` covers both runs for ``"best"``. ``status``: the robust
+        ``surrogate``, ``threshold``, ``inner_start`` (the start kept), ``robust_cost``;
+        ``wall_s`` covers both runs for ``"best"``. ``status``: GNC's stopping rule, the robust
         cost ``Σ_e ρ(r_e²)`` (odometry edges: ``r_e²``) at the result and at the problem's start,
         and its gradient norm (``ρ'(r²)``-weighted) at the result.
     """
@@ -267,7 +267,6 @@ def _solve_from(
             "mu": np.array(mus),
             "rounds": len(mus),
             "lm_steps": lm_steps,
-            "converged": converged,
             "surrogate": surrogate,
             "threshold": threshold,
             "inner_start": inner_start,
