@@ -113,12 +113,11 @@ def test_gtsam_between_error_is_logmap_not_t2v() -> None:
 def _two_pose_graph(z: gtsam.Pose2):
     from popbench.graph import make_graph
 
-    return make_graph(
-        np.zeros((2, 3)), [0], [1], [[z.x(), z.y(), z.theta()]], np.eye(3)[None], [0]
-    )
+    return make_graph(np.zeros((2, 3)), [0], [1], [[z.x(), z.y(), z.theta()]], np.eye(3)[None], [0])
 
 
 @pytest.mark.dataset
+@pytest.mark.slow  # GTSAM's CustomFactors call Python per edge: 8–15 s per file
 @pytest.mark.parametrize("name", ["csail", "grid1000_3", "fr079"])
 def test_lm_chi2_reaches_gtsam_full_information_optimum(
     capsys: pytest.CaptureFixture, name: str
