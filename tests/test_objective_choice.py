@@ -144,7 +144,7 @@ def table1_f_star() -> dict[str, float]:
 
 
 REGISTERED = [name for name, entry in datasets.DATASETS.items() if entry.alias_of is None]
-SLOW = ("city10k", "city10k_gt", "w10000")
+SLOW = ("city10k", "city10k_gt", "w10000", "m3500b", "m3500c")  # 12–35 s each
 
 
 @pytest.mark.dataset
@@ -165,4 +165,4 @@ def test_objective_F_keeps_todays_F_star(capsys: pytest.CaptureFixture, name: st
     expected = committed[0] if committed else None
     if expected is not None:
         assert record["F"] == pytest.approx(expected, rel=1e-9)
-    assert record["F"] <= reference_optimum(graph).F * (1.0 + 1e-9)
+    assert record["F"] <= reference_optimum(graph).F * (1.0 + 1e-9) + 1e-12  # + round-off at 0
