@@ -231,3 +231,32 @@ def test_fix_poses_refused_by_the_command_exit_2(
     )
     code, _, err = solve_cli(capsys, "loop30", "--method", "cc-pgo")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "FIX" in err
+
+
+@pytest.mark.parametrize(("method", "fix"), [("lm", "5 12"), ("gnc", "5 12"), ("mm-pgo", "12")])
+def test_fix_lines_hold_their_poses_bitwise_through_the_command(
+    capsys: pytest.CaptureFixture, tmp_path, method: str, fix: str
+) -> None:
+    from popbench.io import read_graph
+
+    path = grid_g2o(tmp_path / "grid.g2o")
+    path.write_text(path.read_text() + f"FIX {fix}\n")
+    out = tmp_path / "out.g2o"
+    args = (str(path), "--method", method, "--init", "odometry", "--output", str(out), "--json")
+    code, _, err = solve_cli(capsys, *args)
+    assert code == 0, err
+    given, solved = read_graph(path), read_graph(out)
+    fixed = np.array([int(i) for i in fix.split()])
+    assert np.array_equal(given.fixed, fixed) and np.array_equal(solved.fixed, fixed)
+    assert np.array_equal(solved.poses[fixed], given.poses[fixed])
+    assert not np.array_equal(solved.poses, given.poses)
+
+
+def test_two_fix_lines_refused_by_a_method_that_holds_one(
+    capsys: pytest.CaptureFixture, tmp_path
+) -> None:
+    path = grid_g2o(tmp_path / "grid.g2o")
+    path.write_text(path.read_text() + "FIX 5\nFIX 12\n")
+    code, _, err = solve_cli(capsys, str(path), "--method", "cc-pgo", "--robots", "2")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "cannot hold 2 FIX poses fixed" in err
