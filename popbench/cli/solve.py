@@ -416,7 +416,8 @@ EPILOG = (
     "  popbench solve path/to/graph.g2o --iterations 50 -o key=value\n\n"
     "  popbench solve intel --method gnc --output out.g2o --trajectory out.tum --flags out.csv\n\n"
     "Objectives: F is paper eq. 1 with κ=Λθθ and τ=2/tr(Λtt⁻¹); F_chordal the SE-Sync "
-    "chordal cost (no ½); chi2 g2o's EDGE_SE2 Σ eᵀΛe (no ½). See README.md."
+    "chordal cost (no ½); chi2 g2o's EDGE_SE2 Σ eᵀΛe (no ½), the full information. lm, gnc, "
+    "local-lm and prop-v2 minimise chi2 unless --objective F; the others F. See docs/solve.md."
 )
 
 
