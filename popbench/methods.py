@@ -331,10 +331,10 @@ def never_worse(solve: Method, record: MethodRecord | None = None) -> Method:
 
 def check_fixed(graph: Any, holds: bool, method: str) -> int | None:
     """The one pose a method that cannot hold poses fixed must hold as its gauge (the graph's
-    single ``FIX`` pose other than vertex 0), or None; PopbenchError for more than one ``FIX``
-    pose where the method does not hold them (``holds``)."""
+    single ``FIX`` pose), or None; PopbenchError for more than one ``FIX`` pose where the method
+    does not hold them (``holds``)."""
     fixed = getattr(graph, "fixed", None)
-    if fixed is None or holds or (len(fixed) == 1 and int(fixed[0]) == 0):
+    if fixed is None or holds:
         return None
     if len(fixed) == 1:
         return int(fixed[0])
