@@ -33,7 +33,8 @@ import torch
 
 from agents.actor import HybridActor
 from agents.config import ExperimentConfig, TaskConfig
-from agents.imitation import graph_batch, make_core
+from agents.encoder import GraphBatch
+from agents.imitation import make_core
 
 PROBE_SEED_OFFSET = 2_000_003  # disjoint from training and from the trainer's evaluation
 
@@ -45,17 +46,17 @@ def _episode(actor: HybridActor, core, expert, zero: bool) -> dict:  # noqa: ANN
     g = b * n
     memory = actor.initial_memory(g)
     prev_edge, prev_delta = torch.zeros(g, e + 1), torch.zeros(g, 3)
-    start = float(core.tensors["loss"].sum())
+    start = float(core.state.loss.sum())
     rows: dict[str, list] = {"expert": [], "base": [], "executed": [], "delta": []}
     bound = core.action_bound.to(torch.float32)
-    for _ in range(int(core.tensors["num_edges"].max())):
-        graphs = graph_batch(core)
+    for _ in range(core.horizon):
+        graphs = GraphBatch(**core.graph_batch())
         out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
         edge = out.edge.view(b, n)
         base = core.base_step(edge).reshape(g, 3).to(torch.float32)
         added = base if core.base == "gauss-newton" else torch.zeros_like(base)
         delta = torch.zeros_like(out.delta) if zero else out.delta
-        on_tree = torch.gather(core.tensors["tree_edge"].view(g, -1), 1, out.edge[:, None])[:, 0]
+        on_tree = torch.gather(core.state.tree_edge.view(g, -1), 1, out.edge[:, None])[:, 0]
         keep = on_tree & (out.edge < e)
         rows["expert"].append(expert.delta(edge).reshape(g, 3)[keep].to(torch.float32))
         rows["base"].append(base[keep])
@@ -63,7 +64,7 @@ def _episode(actor: HybridActor, core, expert, zero: bool) -> dict:  # noqa: ANN
         rows["delta"].append(out.delta[keep])
         core.step(edge, delta.view(b, n, 3))
         memory, prev_edge, prev_delta = out.memory, out.edge_weights, delta
-    gain = 1.0 - float(core.tensors["loss"].sum()) / max(start, 1e-12)
+    gain = 1.0 - float(core.state.loss.sum()) / max(start, 1e-12)
     return {key: torch.cat(value).numpy() for key, value in rows.items()} | {"gain": gain}
 
 
@@ -83,8 +84,8 @@ def correction_probe(
     from envs.expert import Expert
 
     experiment = dataclasses.replace(experiment, seed=seed + PROBE_SEED_OFFSET)
-    core, sampler = make_core(task, experiment, problems, experiment.seed)
-    batch = [sampler.draw(element) for element in range(problems)]
+    core, _ = make_core(task, experiment, problems, experiment.seed)
+    batch = list(core.problems)
     layers = [m for m in actor.correction_head if isinstance(m, torch.nn.ReLU)]
     hidden: dict[int, list] = {id(layer): [] for layer in layers}
     handles = [

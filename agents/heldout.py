@@ -86,13 +86,11 @@ def episode(problem: DistributedProblem, policy: Callable[[Any], Policy]) -> lis
     (:data:`POLICY_TASK`, separators placed) driven by ``policy(core)``, a function of the core
     returning the per-step policy ``step(core) -> (edge [n], delta [n, 3])``."""
     from envs.core import PGOCore
-    from envs.observation import Dimensions
 
     n = problem.num_robots
-    core = PGOCore(n, Dimensions.of([problem]), 1, reward="F", **POLICY_TASK.core_options())
-    core.load([problem], [0])
+    core = PGOCore.for_problems([problem], POLICY_TASK)
     step = policy(core)
-    for _ in range(int(core.tensors["num_edges"].max())):
+    for _ in range(core.horizon):
         edge, delta = step(core)
         core.step(torch.as_tensor(edge).view(1, n), torch.as_tensor(delta).view(1, n, 3))
     return core.local_poses(0)

@@ -62,9 +62,12 @@ class EpisodeLog:
     gate_loss: float = 0.0
 
 
-def make_core(task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: int):  # noqa: ANN201
-    """(core, sampler): a PGOCore over `batch` synthetic problems of the experiment's kind
-    (with its training outliers) with measurement reward, and its seeded problem stream."""
+def make_core(  # noqa: ANN201
+    task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: int, first_episode: int = 0
+):
+    """(core, sampler): a PGOCore with measurement reward over `batch` synthetic problems of the
+    experiment's kind (with its training outliers), loaded with episode `first_episode` of its
+    seeded problem stream, and the stream, positioned after them."""
     from envs import make_problem_source
     from envs.core import PGOCore
     from envs.sampler import ProblemSampler
@@ -76,18 +79,10 @@ def make_core(task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: 
         start_noise=experiment.start_noise,
         outlier_rate_max=experiment.outlier_rate_max,
     )
-    core = PGOCore(experiment.robots, dims, batch, reward="F", **task.core_options())
-    return core, ProblemSampler(source, batch, seed)
-
-
-def graph_batch(core) -> GraphBatch:  # noqa: ANN001
-    """The core's observation as G = B·n graphs."""
-    g = core.batch * core.num_agents
-    observation = core.observation()
-    return GraphBatch(
-        **{key: value.reshape(g, *value.shape[2:]) for key, value in observation.items()},
-        action_mask=core.action_mask().reshape(g, -1),
-    )
+    sampler = ProblemSampler(source, batch, seed)
+    sampler.episodes[:] = first_episode
+    problems = [sampler.draw(element) for element in range(batch)]
+    return PGOCore.for_problems(problems, task, dims=dims), sampler
 
 
 def imitate(
@@ -115,7 +110,7 @@ def imitate(
     """
     from envs.expert import Expert
 
-    core, sampler = make_core(task, experiment, config.num_envs, experiment.seed)
+    core, sampler = make_core(task, experiment, config.num_envs, experiment.seed, start_episode)
     expert = Expert(core)
     bound = core.action_bound.to(torch.float32)
     if not torch.allclose(actor.delta_max, bound):
@@ -124,7 +119,6 @@ def imitate(
     generator = torch.Generator().manual_seed(experiment.seed)
     b, n, e = core.batch, core.num_agents, core.dims.edges
     g = b * n
-    sampler.episodes[:] = start_episode
     started = time.perf_counter()
     logs = []
     actor.train()
@@ -132,15 +126,16 @@ def imitate(
         if config.seconds is not None and time.perf_counter() - started > config.seconds:
             break
         tick = time.perf_counter()
-        core.load([sampler.draw(element) for element in range(b)], range(b))
+        if k > start_episode:  # make_core loaded the first episode's problems
+            core.load([sampler.draw(element) for element in range(b)], range(b))
         beta = config.beta_start * config.beta_decay**k
         memory = actor.initial_memory(g)
         prev_edge, prev_delta = torch.zeros(g, e + 1), torch.zeros(g, 3)
-        initial_loss = float(core.tensors["loss"].sum())
+        initial_loss = float(core.state.loss.sum())
         sums = np.zeros(4)
-        steps = int(core.tensors["num_edges"].max())
+        steps = core.horizon
         for _ in range(steps):
-            graphs = graph_batch(core)
+            graphs = GraphBatch(**core.graph_batch())
             out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
             right = expert.right_edges().reshape(g, -1)
             with torch.no_grad():
@@ -160,7 +155,7 @@ def imitate(
             loss = edge_loss + config.delta_weight * delta_loss
             gate_loss = torch.zeros(())
             if config.gate_weight > 0:
-                outlier = core.tensors["outlier"].reshape(g, -1)
+                outlier = core.state.outlier.reshape(g, -1)
                 gate_loss = gate_supervision_loss(
                     out.encoding.gate_logits, outlier, graphs.edge_mask
                 )
@@ -184,7 +179,7 @@ def imitate(
             edge_loss=sums[0] / steps,
             delta_loss=sums[1] / steps,
             right_edge=sums[2] / steps,
-            local_gain=1.0 - float(core.tensors["loss"].sum()) / max(initial_loss, 1e-12),
+            local_gain=1.0 - float(core.state.loss.sum()) / max(initial_loss, 1e-12),
             seconds=time.perf_counter() - tick,
             gate_loss=sums[3] / steps,
         )

@@ -94,6 +94,8 @@ class Episode:
         start_poses: each robot's local copy at the episode's start (separators placed).
         start_local_F, local_F: (n,) each robot's local objective (F of its local graph, its
             own copies) at the start and after the episode.
+        core: the environment the episode ran in (the outlier gate reads the reconciled
+            estimate in it, agents.outlier_gate.reconciled_state).
     """
 
     local_poses: list[np.ndarray]
@@ -104,6 +106,7 @@ class Episode:
     start_poses: list[np.ndarray]
     start_local_F: np.ndarray
     local_F: np.ndarray
+    core: PGOCore
 
     def kept(self) -> np.ndarray:
         """(n,) bool: the robot's episode lowered its local objective (prop-v1 keeps its
@@ -150,23 +153,20 @@ def flag_gate(
     fitted = cached_outlier_gate(str(checkpoint), device)
     if fitted is None:
         return episode.gate, GATE_THRESHOLD
-    return reconciled_gate(fitted.encoder, task, problem, poses), fitted.threshold
+    gate = reconciled_gate(fitted.encoder, task, problem, poses, episode.core)
+    return gate, fitted.threshold
 
 
 def episode_core(actor: HybridActor, problem: DistributedProblem, task: TaskConfig) -> PGOCore:
     """The one-problem environment (``B = 1``, reward F) of the actor's `task`, loaded with
     `problem`, in which prop-v1's episode runs."""
     from envs.core import PGOCore
-    from envs.observation import Dimensions
 
     if task.action_scale == "metric":  # the actor's bound is Δmax itself
-        core_options = {"delta_max": actor.delta_max.tolist()}
+        options = {"delta_max": actor.delta_max.tolist()}
     else:  # the actor's bound is the whitened one; the environment keeps its metric Δmax
-        core_options = {}
-    dims = Dimensions.of([problem])
-    core = PGOCore(problem.num_robots, dims, 1, reward="F", **core_options, **task.core_options())
-    core.load([problem], [0])
-    return core
+        options = {}
+    return PGOCore.for_problems([problem], task, **options)
 
 
 def run_episode(
@@ -183,39 +183,33 @@ def run_episode(
     of steps done after each step (progress display); `task` is the environment the actor was
     trained in (its checkpoint's); `correction=False` executes Δ := 0 on the actor's edge (in a
     `base="gauss-newton"` task: the base step alone; the actor's memory still reads its own Δ)."""
-    from envs.readout import chosen_base_observation
-
     start = time.perf_counter()
     n = problem.num_robots
     core = episode_core(actor, problem, task)
-    dims = core.dims
-    t = core.tensors
-    observation = {key: value[0] for key, value in core.observation().items()}
-    graphs = GraphBatch(**observation, action_mask=core.action_mask()[0])
-    policy = IncrementalPolicy(actor, graphs, t["incident"][0])
-    num_edges = dims.edges
-    edge_ids, edge_mask = t["edge_ids"][0], t["edge_mask"][0]
+    t = core.state
+    policy = IncrementalPolicy(actor, GraphBatch(**core.graph_batch(0)), t.incident[0])
+    num_edges = core.dims.edges
+    edge_ids, edge_mask = t.edge_ids[0], t.edge_mask[0]
     holders = np.bincount(edge_ids[edge_mask].numpy(), minlength=problem.graph.num_edges)
-    share = torch.zeros(n, num_edges, dtype=t["costs"].dtype)
+    share = torch.zeros(n, num_edges, dtype=t.costs.dtype)
     share[edge_mask] = torch.as_tensor(
         1.0 / holders[edge_ids[edge_mask].numpy()], dtype=share.dtype
     )
 
     def copies_objective() -> float:
-        return float((t["costs"][0][:, :num_edges] * share).sum())
+        return float((t.costs[0][:, :num_edges] * share).sum())
 
     history = [copies_objective()]
     start_poses = [poses.copy() for poses in core.local_poses(0)]  # views of the live state
-    start_local_F = t["loss"][0].numpy().copy()
+    start_local_F = t.loss[0].numpy().copy()
     setup_s = time.perf_counter() - start
     step_s = []
-    horizon = int(t["num_edges"].max())
-    horizon = horizon if max_steps is None else min(horizon, max_steps)
+    horizon = core.horizon if max_steps is None else min(core.horizon, max_steps)
     base = None
     if actor.config.base_features:
 
         def base(edge: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            return chosen_base_observation(core, edge.view(1, n))
+            return core.chosen_base_observation(edge.view(1, n))
 
     for _ in range(horizon):
         tick = time.perf_counter()
@@ -239,7 +233,8 @@ def run_episode(
         setup_s,
         start_poses,
         start_local_F,
-        t["loss"][0].numpy().copy(),
+        t.loss[0].numpy().copy(),
+        core,
     )
 
 

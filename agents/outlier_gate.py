@@ -12,6 +12,7 @@ holds it, and otherwise when the episode's own final gate is ≤ ½.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -20,6 +21,9 @@ from torch import Tensor
 from agents.config import TaskConfig
 from agents.encoder import GraphBatch, GraphEncoder
 from popbench.distributed import DistributedProblem
+
+if TYPE_CHECKING:
+    from envs.core import PGOCore
 
 GATE_THRESHOLD = 0.5  # the episode gate's flag threshold (the hard-concrete relaxation's median)
 
@@ -52,25 +56,27 @@ class GateState:
     num_edges: int
 
 
-def reconciled_state(problem: DistributedProblem, poses: np.ndarray, task: TaskConfig) -> GateState:
+def reconciled_state(
+    problem: DistributedProblem, poses: np.ndarray, task: TaskConfig, core: PGOCore | None = None
+) -> GateState:
     """Every robot's local graph with each vertex, owned or a separator copy, at its global
-    ``poses`` ``(N, 3)`` value, observed as in the environment ``task``."""
+    ``poses`` ``(N, 3)`` value, observed as in the environment ``task``: in ``core`` (prop-v1's
+    episode core over ``problem``, restarted at ``poses``) when given, else in a new one."""
     from envs.core import PGOCore
-    from envs.observation import Dimensions
 
-    at = dataclasses.replace(problem, graph=problem.graph.replace(poses=np.asarray(poses)))
-    dims = Dimensions.of([at])
-    core = PGOCore(
-        at.num_robots, dims, 1, reward="F", place_separators=False, **task.core_options()
-    )
-    core.load([at], [0])
-    observation = {key: value[0] for key, value in core.observation().items()}
-    t = core.tensors
+    if core is None:
+        at = dataclasses.replace(problem, graph=problem.graph.replace(poses=np.asarray(poses)))
+        core = PGOCore.for_problems([at], task, place_separators=False)
+    else:
+        if core.problems[0] is not problem:
+            raise ValueError("the core does not hold this problem")
+        core.restart_at(0, poses)
+    t = core.state
     return GateState(
-        graphs=GraphBatch(**observation, action_mask=core.action_mask()[0]),
-        edge_ids=t["edge_ids"][0],
-        edge_mask=t["edge_mask"][0],
-        outlier=t["outlier"][0, :, : dims.edges],
+        graphs=GraphBatch(**core.graph_batch(0)),
+        edge_ids=t.edge_ids[0],
+        edge_mask=t.edge_mask[0],
+        outlier=t.outlier[0],
         num_edges=problem.graph.num_edges,
     )
 
@@ -95,10 +101,15 @@ def state_gate(encoder: GraphEncoder, state: GateState) -> np.ndarray:
 
 
 def reconciled_gate(
-    encoder: GraphEncoder, task: TaskConfig, problem: DistributedProblem, poses: np.ndarray
+    encoder: GraphEncoder,
+    task: TaskConfig,
+    problem: DistributedProblem,
+    poses: np.ndarray,
+    core: PGOCore | None = None,
 ) -> np.ndarray:
-    """:func:`state_gate` at the reconciled estimate ``poses`` ``(N, 3)``."""
-    return state_gate(encoder, reconciled_state(problem, poses, task))
+    """:func:`state_gate` at the reconciled estimate ``poses`` ``(N, 3)`` (in ``core``, as
+    :func:`reconciled_state`)."""
+    return state_gate(encoder, reconciled_state(problem, poses, task, core))
 
 
 def candidate_auc(problem: DistributedProblem, gate: np.ndarray) -> float:

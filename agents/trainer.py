@@ -175,8 +175,8 @@ def evaluate_f_reduction(session: Session, eval_env) -> float:
             if bool(tensordict["next", "done"].all()):
                 break
             tensordict = step_mdp(tensordict)
-    core = eval_env.core.tensors
-    return float(1.0 - core["loss"].sum() / core["initial_loss"].sum())
+    state = eval_env.core.state
+    return float(1.0 - state.loss.sum() / state.initial_loss.sum())
 
 
 @dataclasses.dataclass(frozen=True)

@@ -37,7 +37,7 @@ def first_valid_action(env, generator: torch.Generator) -> tuple[torch.Tensor, t
 
 def _horizon(env, max_steps: int | None) -> int:
     """Steps timed per episode: the whole episode, or its first ``max_steps``."""
-    horizon = int(env.core.tensors["num_edges"].max())
+    horizon = env.core.horizon
     return horizon if max_steps is None else min(horizon, max_steps)
 
 
@@ -103,16 +103,16 @@ def time_rollout(env, episodes: int, max_steps: int | None = None) -> tuple[floa
 def time_full_recompute(env, steps: int) -> float:
     """Seconds per step of recomputing every local residual (the non-incremental reference)."""
     core = env.core
-    t = core.tensors
+    t = core.state
     g = core.batch * core.num_agents
-    poses = t["poses"].view(g, -1, 3)
-    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
-    measurements = t["measurements"].view(g, -1, 3)
+    poses = t.poses.view(g, -1, 3)
+    tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
+    measurements = t.measurements.view(g, -1, 3)
     _sync(core.device)
     start = time.perf_counter()
     for _ in range(steps):
         r = residuals(_gather_rows(poses, tails), _gather_rows(poses, heads), measurements)
-        (t["kappa"].view(g, -1) * r[..., 2] ** 2).sum(-1)
+        (t.kappa.view(g, -1) * r[..., 2] ** 2).sum(-1)
     _sync(core.device)
     return (time.perf_counter() - start) / steps
 

@@ -68,12 +68,7 @@ def full_pass_seconds(actor: HybridActor, task: TaskConfig, problem, repeats: in
     """Median time of one full (non-incremental) deterministic actor pass on `problem`, in the
     environment of the actor's `task` (agents.methods.episode_core, as prop-v1's episode)."""
     n = problem.num_robots
-    core = episode_core(actor, problem, task)
-    obs = core.observation()
-    graphs = GraphBatch(
-        **{key: value.reshape(n, *value.shape[2:]) for key, value in obs.items()},
-        action_mask=core.action_mask()[0],
-    )
+    graphs = GraphBatch(**episode_core(actor, problem, task).graph_batch(0))
     memory = actor.initial_memory(n)
     prev_edge = torch.zeros(n, graphs.action_mask.shape[-1])
     prev_delta = torch.zeros(n, 3)

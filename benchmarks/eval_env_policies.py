@@ -39,14 +39,10 @@ from popbench.synthetic import make_problem
 
 def episode(problems, dims, correction: str, place: bool, policy_class) -> tuple[np.ndarray, float]:
     """``(local F per problem after one episode, fraction of clipped corrections)``."""
-    n = problems[0].num_robots
-    core = PGOCore(
-        n, dims, len(problems), reward="F", correction=correction, place_separators=place
-    )
-    core.load(problems, range(len(problems)))
+    core = PGOCore.for_problems(problems, dims=dims, correction=correction, place_separators=place)
     policy = None if policy_class is None else policy_class(core)
     clipped = total = 0
-    for _ in range(int(core.tensors["num_edges"].max())):
+    for _ in range(core.horizon):
         if policy is None:
             edge = core.action_mask().to(torch.int8).argmax(-1)
             delta = torch.zeros(edge.shape + (3,), dtype=core.dtype)
@@ -56,7 +52,7 @@ def episode(problems, dims, correction: str, place: bool, policy_class) -> tuple
         clipped += int(((delta.abs() > core.delta_max).any(-1) & real).sum())
         total += int(real.sum())
         core.step(edge, delta)
-    return core.tensors["loss"].sum(-1).numpy(), clipped / max(total, 1)
+    return core.state.loss.sum(-1).numpy(), clipped / max(total, 1)
 
 
 def main() -> None:

@@ -41,12 +41,29 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 
+from envs.features import BASE_MODEL
 from envs.geometry import _gather_rows
 
 if TYPE_CHECKING:
-    from envs.core import PGOCore
+    from envs.state import CoreState
 
 DAMPING = 1e-9  # μ, relative to the largest diagonal entry of H (at least 1)
+
+
+class StepModes(NamedTuple):
+    """What the base step needs of the core's modes.
+
+    Attributes:
+        correction: ``"pose"`` or ``"subtree"`` (what a correction moves, :mod:`envs.core`).
+        delta_max: ``(3,)`` Δmax, metric (δx [m], δy [m], δθ [rad]).
+        action_bound: ``(3,)`` the bound of the action's Δ (Δmax, or the whitened bound).
+        whitened: the action is in units of the chosen edge's σ (``action_scale="whitened"``).
+    """
+
+    correction: str
+    delta_max: torch.Tensor
+    action_bound: torch.Tensor
+    whitened: bool
 
 
 class BaseModel(NamedTuple):
@@ -67,7 +84,7 @@ class BaseModel(NamedTuple):
     local_f: torch.Tensor
 
 
-MODEL_FEATURES = 9  # observed per edge: g / F (3) and the upper triangle of H / F (6)
+MODEL_FEATURES = BASE_MODEL  # observed per edge: g / F (3) and the upper triangle of H / F (6)
 UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # the order of the upper triangle
 
 
@@ -143,17 +160,16 @@ def _subtree_sums(values: torch.Tensor, position: torch.Tensor, end: torch.Tenso
     return upper - lower
 
 
-def base_model(core: PGOCore) -> BaseModel:
+def base_model(t: CoreState, modes: StepModes) -> BaseModel:
     """The quadratic model and Gauss–Newton step of every edge slot of every agent (module
-    docstring), from the core's current poses and residuals, by subtree sums (the training
+    docstring), from the state's current poses and residuals, by subtree sums (the training
     observation shows every candidate's model)."""
-    t = core.tensors
-    g = core.batch * core.num_agents
-    slots = core.dims.vertices + 1
-    poses = t["poses"].view(g, -1, 3)
-    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
-    tau, kappa = t["tau"].view(g, -1), t["kappa"].view(g, -1)
-    r = t["residuals"].view(g, -1, 3)
+    g = t.tails.shape[0] * t.tails.shape[1]
+    slots = t.poses.shape[2]
+    poses = t.poses.view(g, -1, 3)
+    tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
+    tau, kappa = t.tau.view(g, -1), t.kappa.view(g, -1)
+    r = t.residuals.view(g, -1, 3)
     origin = poses[:, :1, :2]
     x_tail, x_head = _gather_rows(poses, tails), _gather_rows(poses, heads)
     head_xy = x_head[..., :2] - origin
@@ -166,20 +182,20 @@ def base_model(core: PGOCore) -> BaseModel:
 
     per_vertex = torch.cat([scatter(heads, u) - scatter(tails, u), scatter(heads, h)], -1)
     per_vertex[..., 3:] += scatter(tails, h)
-    if core.correction == "subtree":
-        per_vertex[..., 3:] -= 2.0 * scatter(t["lca"].view(g, -1), h)
-        position, end = t["tree_position"].view(g, -1), t["tree_end"].view(g, -1)
+    if modes.correction == "subtree":
+        per_vertex[..., 3:] -= 2.0 * scatter(t.lca.view(g, -1), h)
+        position, end = t.tree_position.view(g, -1), t.tree_end.view(g, -1)
         per_vertex = _subtree_sums(per_vertex, position, end)
-        mover = t["mover"].view(g, -1)
-        on_tree = t["tree_edge"].view(g, -1)
+        mover = t.mover.view(g, -1)
+        on_tree = t.tree_edge.view(g, -1)
     else:
         mover = heads
-        on_tree = torch.arange(tails.shape[1], device=core.device) < core.dims.edges
+        on_tree = torch.arange(tails.shape[1], device=tails.device) < t.edge_mask.shape[-1]
     sums = _gather_rows(per_vertex, mover)  # (G, E+1, 7): g_ξ (3), α, β (2), γ
     sign = torch.where(mover == heads, 1.0, -1.0).to(poses.dtype)
     lever = torch.stack([-head_xy[..., 1], head_xy[..., 0]], -1)
-    parts = [t[f"{key}_parts"].view(3, 3, g, -1) for key in WHITENING]
-    gradient, hessian, step = _solve(core, sums, x_tail[..., 2], sign, -lever, parts)
+    parts = [part.view(3, 3, g, -1) for part in _whitening_parts(t)]
+    gradient, hessian, step = _solve(modes, sums, x_tail[..., 2], sign, -lever, parts)
     keep = on_tree.to(poses.dtype).unsqueeze(-1)
     return BaseModel(gradient * keep, hessian * keep, step * keep, _local_f(r, tau, kappa))
 
@@ -204,12 +220,11 @@ class Boundary(NamedTuple):
     head_rows: torch.Tensor
 
 
-def boundary(core: PGOCore, inside: torch.Tensor) -> Boundary:
+def boundary(t: CoreState, inside: torch.Tensor) -> Boundary:
     """The :class:`Boundary` of the vertices ``inside (G, V+1)`` (three comparisons per edge
     slot, then O(crossing edges))."""
-    t = core.tensors
     g = inside.shape[0]
-    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
     head_in = torch.gather(inside, 1, heads)
     crossing = torch.gather(inside, 1, tails) != head_in
     slots = crossing.flatten().nonzero().squeeze(-1)
@@ -220,59 +235,57 @@ def boundary(core: PGOCore, inside: torch.Tensor) -> Boundary:
     return Boundary(crossing, slots, agent, head_in.flatten()[slots], tail_rows, head_rows)
 
 
-def chosen_model(core: PGOCore, edge: torch.Tensor, crossing: Boundary) -> BaseModel:
+def chosen_model(
+    t: CoreState, modes: StepModes, edge: torch.Tensor, crossing: Boundary
+) -> BaseModel:
     """The model and Gauss–Newton step of one edge slot per agent, ``edge (G, 1)``, whose
     correction moves a subtree with the boundary ``crossing`` (:func:`boundary`): the sums of the
     module docstring taken directly over the crossing edges, with positions relative to the
     chosen edge's head (so ``m = 0``), O(crossing edges); the local F, O(E). Fields as
     :class:`BaseModel` with the edge axis of length 1."""
-    gradient, hessian, step = _chosen(core, edge, crossing, model=True)
-    t = core.tensors
+    gradient, hessian, step = _chosen(t, modes, edge, crossing, model=True)
     g = edge.shape[0]
-    r, tau, kappa = t["residuals"].view(g, -1, 3), t["tau"].view(g, -1), t["kappa"].view(g, -1)
+    r, tau, kappa = t.residuals.view(g, -1, 3), t.tau.view(g, -1), t.kappa.view(g, -1)
     return BaseModel(gradient, hessian, step, _local_f(r, tau, kappa))
 
 
-def chosen_step(core: PGOCore, edge: torch.Tensor, crossing: Boundary) -> torch.Tensor:
+def chosen_step(
+    t: CoreState, modes: StepModes, edge: torch.Tensor, crossing: Boundary
+) -> torch.Tensor:
     """``(G, 1, 3)`` the Gauss–Newton step Δ_GN of :func:`chosen_model` alone (what the
     environment executes), without the model's whitening and the local F."""
-    return _chosen(core, edge, crossing, model=False)[2]
+    return _chosen(t, modes, edge, crossing, model=False)[2]
 
 
 def _chosen(
-    core: PGOCore, edge: torch.Tensor, crossing: Boundary, model: bool
+    t: CoreState, modes: StepModes, edge: torch.Tensor, crossing: Boundary, model: bool
 ) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
     """(gradient, hessian, step) of :func:`chosen_model`; gradient and Hessian None unless
     ``model``."""
-    t = core.tensors
     g = edge.shape[0]
-    poses = t["poses"].view(g, -1, 3)
-    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    poses = t.poses.view(g, -1, 3)
+    tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
     slots, agent = crossing.slots, crossing.agent
     flat_poses = poses.reshape(-1, 3)
     x_tail, x_head = flat_poses[crossing.tail_rows], flat_poses[crossing.head_rows]
     p, q = torch.gather(tails, 1, edge), torch.gather(heads, 1, edge)
     x_p, x_q = _gather_rows(poses, p).squeeze(1), _gather_rows(poses, q).squeeze(1)
     head_xy = x_head[:, :2] - x_q[agent, :2]
-    r = t["residuals"].view(-1, 3)[slots]
-    u, h = _edge_terms(
-        x_tail[:, 2], head_xy, r, t["tau"].view(-1)[slots], t["kappa"].view(-1)[slots]
-    )
+    r = t.residuals.view(-1, 3)[slots]
+    u, h = _edge_terms(x_tail[:, 2], head_xy, r, t.tau.view(-1)[slots], t.kappa.view(-1)[slots])
     sigma = torch.where(crossing.head_inside, 1.0, -1.0).to(poses.dtype).unsqueeze(-1)
     sums = torch.zeros(g, 7, dtype=poses.dtype, device=poses.device)
     sums.index_add_(0, agent, torch.cat([sigma * u, h], -1))
-    if core.correction == "subtree":
-        mover = torch.gather(t["mover"].view(g, -1), 1, edge)
-        on_tree = torch.gather(t["tree_edge"].view(g, -1), 1, edge)
+    if modes.correction == "subtree":
+        mover = torch.gather(t.mover.view(g, -1), 1, edge)
+        on_tree = torch.gather(t.tree_edge.view(g, -1), 1, edge)
     else:
-        mover, on_tree = q, edge < core.dims.edges
+        mover, on_tree = q, edge < t.edge_mask.shape[-1]
     sign = torch.where(mover == q, 1.0, -1.0).to(poses.dtype)
     rows_g = torch.arange(g, device=edge.device)
-    parts = [
-        t[f"{key}_parts"].view(3, 3, g, -1)[:, :, rows_g, edge[:, 0], None] for key in WHITENING
-    ]
+    parts = [part.view(3, 3, g, -1)[:, :, rows_g, edge[:, 0], None] for part in _whitening_parts(t)]
     gradient, hessian, step = _solve(
-        core,
+        modes,
         sums.unsqueeze(1),
         x_p[:, None, 2],
         sign,
@@ -286,7 +299,9 @@ def _chosen(
     return gradient * keep, hessian * keep, step * keep
 
 
-WHITENING = ("sqrt_information", "inverse_sqrt_information")
+def _whitening_parts(t: CoreState) -> tuple[torch.Tensor, torch.Tensor]:
+    """The components ``(3, 3, G, E+1)`` of Λ^½ and Λ^−½ (:func:`matrix_parts`)."""
+    return t.sqrt_information_parts, t.inverse_sqrt_information_parts
 
 
 def _local_f(r: torch.Tensor, tau: torch.Tensor, kappa: torch.Tensor) -> torch.Tensor:
@@ -316,7 +331,7 @@ def _edge_terms(
 
 
 def _solve(
-    core: PGOCore,
+    modes: StepModes,
     sums: torch.Tensor,
     theta_p: torch.Tensor,
     sign: torch.Tensor,
@@ -351,14 +366,14 @@ def _solve(
     step = [step_t[..., 0], step_t[..., 1], step_theta]
     # shortened along its direction to fit Δmax (and below, the whitened bound): the core's
     # componentwise clip would turn an anisotropic step off its descent direction
-    fit = _fit(step, core.delta_max)
+    fit = _fit(step, modes.delta_max)
     gradient = [g_t[..., 0], g_t[..., 1], g_theta]
     hessian = [h_c[key] for key in UPPER]
-    whitened = core.action_scale == "whitened"
+    whitened = modes.whitened
     if whitened:  # Δ_w = Λ^½ Δ, g_w = Aᵀ g, H_w = Aᵀ H A (A = Λ^−½)
         root, inverse_root = parts
         step = _apply(root, step)
-        fit = torch.minimum(fit, _fit(step, core.action_bound))
+        fit = torch.minimum(fit, _fit(step, modes.action_bound))
     step = torch.stack([component * fit for component in step], -1)
     if not model:
         return None, None, step

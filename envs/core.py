@@ -63,7 +63,7 @@ Cost per step
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -71,11 +71,11 @@ import torch
 from envs.basestep import (
     BaseModel,
     Boundary,
+    StepModes,
     base_model,
     boundary,
     chosen_model,
     chosen_step,
-    matrix_parts,
 )
 from envs.geometry import (
     _gather_rows,
@@ -87,7 +87,8 @@ from envs.geometry import (
     residuals,
 )
 from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
-from envs.readout import observation_changes, observe
+from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
+from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
 from envs.tree import pack_trees, place_separators
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
@@ -104,6 +105,14 @@ WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened act
 
 
 # ----- the batched state ------------------------------------------------------------------------
+
+
+class CoreTask(Protocol):
+    """A record of the environment's modes (:meth:`PGOCore.for_problems`): its
+    ``core_options()`` gives the keywords ``correction``, ``observation``, ``action_scale``,
+    ``base`` of :class:`PGOCore`."""
+
+    def core_options(self) -> dict[str, str]: ...
 
 
 class StepResult(NamedTuple):
@@ -228,12 +237,64 @@ class PGOCore:
             if whitened
             else self.delta_max
         )
+        #: what the base step and the read-out need of the modes (envs.basestep, envs.readout)
+        self.step_modes = StepModes(correction, self.delta_max, self.action_bound, whitened)
+        self.readout_modes = ReadoutModes(observation == "invariant", whitened)
         self.problems: list[DistributedProblem | None] = [None] * batch
-        self.tensors: dict[str, torch.Tensor] = {}
+        self._state: CoreState | None = None
         #: what the last step rewrote: vertices ``(B·n, V+1)`` and edge slots ``(B·n, E+1)``
         self.last_moved: torch.Tensor | None = None
         self.last_refreshed: torch.Tensor | None = None
         self._base_model: BaseModel | None = None
+
+    @classmethod
+    def for_problems(
+        cls,
+        problems: Sequence[DistributedProblem],
+        task: CoreTask | None = None,
+        *,
+        reward: str = "F",
+        dims: Dimensions | None = None,
+        **options: Any,
+    ) -> PGOCore:
+        """The environment's front door: a core over ``problems`` (``B = len(problems)``, their
+        own robots), loaded with them.
+
+        Args:
+            problems: the problems, one per batch element, all with the same number of robots.
+            task: the environment's modes: any record whose ``core_options()`` gives the mode
+                keywords (``correction``, ``observation``, ``action_scale``, ``base``; e.g.
+                :class:`envs.tasks.Task` or the actors' task config); None: the paper's.
+            reward: ``"F"`` (default: no ground truth needed) or ``"localisation"``.
+            dims: padding maxima (default: the problems' own, :meth:`Dimensions.of`).
+            options: further keywords of :class:`PGOCore` (``delta_max``, ``place_separators``,
+                ``terminal_bonus``, ``invalid_edge``, ``device``, ``dtype``; a mode given here
+                overrides the task's).
+        """
+        if not problems:
+            raise ValueRangeError("problems", 0, "at least one problem")
+        options = {**({} if task is None else task.core_options()), **options}
+        dims = dims or Dimensions.of(problems)
+        core = cls(problems[0].num_robots, dims, len(problems), reward=reward, **options)
+        core.load(problems, range(len(problems)))
+        return core
+
+    @property
+    def state(self) -> CoreState:
+        """The declared state (:class:`envs.state.CoreState`); loading problems creates it."""
+        if self._state is None:
+            raise RuntimeError("the core holds no problem yet: load problems first")
+        return self._state
+
+    @property
+    def loaded(self) -> bool:
+        """Whether problems were loaded (the state exists)."""
+        return self._state is not None
+
+    @property
+    def horizon(self) -> int:
+        """``T = max_i |E_i|`` over the batch: the steps after which every episode has ended."""
+        return int(self.state.num_edges.max())
 
     # -- episode start ---------------------------------------------------------------------------
 
@@ -264,70 +325,74 @@ class PGOCore:
         for key, value in fresh.items():
             if value.is_floating_point() and key != "edge_attr":
                 fresh[key] = value.to(self.dtype)
-        if not self.tensors:
+        if self._state is None:
             if sorted(elements) != list(range(self.batch)):
                 raise ValueError("the first load must start every batch element")
+            check_packed(fresh)
             order = torch.as_tensor(np.argsort(elements), device=self.device)
-            self.tensors = {key: value[order] for key, value in fresh.items()}
+            packed = {key: value[order] for key, value in fresh.items()}
+            dynamics = empty_dynamics(
+                self.batch, self.num_agents, self.dims.edges, self.dtype, self.device
+            )
+            derived = derived_entries(*(packed[key] for key in DERIVED_FROM))
+            self._state = CoreState(**packed, **derived, **dynamics)
         else:
-            index = torch.as_tensor(elements, device=self.device)
-            for key, value in fresh.items():
-                replaced = self.tensors[key].clone()
-                replaced[index] = value
-                self.tensors[key] = replaced
-        self._cache_edge_index()
-        for key in ("sqrt_information", "inverse_sqrt_information"):  # for envs.basestep
-            t = self.tensors
-            t[f"{key}_parts"] = matrix_parts(t[key].flatten(0, 1))
+            self._state.replace_elements(torch.as_tensor(elements, device=self.device), fresh)
+            derived = derived_entries(*(getattr(self._state, key) for key in DERIVED_FROM))
+            for key, value in derived.items():
+                setattr(self._state, key, value)
         for problem, element in zip(problems, elements, strict=True):
             self.problems[element] = problem
         self._restart(torch.as_tensor(elements, device=self.device))
 
+    def restart_at(self, element: int, poses: np.ndarray) -> None:
+        """Restart the episode of batch element ``element`` with every local copy, owned or a
+        separator copy, at its global value ``poses (N, 3)`` (e.g. the reconciled estimate after
+        the consensus): the residuals, costs and processed flags as at an episode's start."""
+        t = self.state
+        ids = t.vertex_ids[element]
+        local = torch.as_tensor(np.asarray(poses), dtype=self.dtype, device=self.device)
+        restarted = torch.zeros_like(t.poses[element])
+        restarted[:, :-1][ids >= 0] = local[ids[ids >= 0]]
+        replaced = t.poses.clone()  # out of place: copies handed out earlier stay valid
+        replaced[element] = restarted
+        t.poses = replaced
+        self._restart(torch.as_tensor([element], device=self.device))
+
     def _restart(self, index: torch.Tensor) -> None:
         """Recompute the dynamic buffers of the elements ``index`` from their initial poses."""
-        t = self.tensors
-        poses = t["poses"][index]
-        tails, heads = t["tails"][index], t["heads"][index]
+        t = self.state
+        poses = t.poses[index]
+        tails, heads = t.tails[index], t.heads[index]
         flat_poses = poses.flatten(0, 1)
         tail_poses = _gather_rows(flat_poses, tails.flatten(0, 1)).view(tails.shape + (3,))
         head_poses = _gather_rows(flat_poses, heads.flatten(0, 1)).view(heads.shape + (3,))
-        r = residuals(tail_poses, head_poses, t["measurements"][index])
         costs = edge_costs(
-            residuals(tail_poses, head_poses, t["targets"][index]),
-            t["kappa"][index],
-            t["tau"][index],
+            residuals(tail_poses, head_poses, t.targets[index]), t.kappa[index], t.tau[index]
         )
         processed = torch.zeros(tails.shape, dtype=torch.bool, device=self.device)
         processed[..., -1] = True  # the no-op slot
-        dynamic = {
-            "residuals": r,
-            "costs": costs,
-            "processed": processed,
-            "loss": costs.sum(-1),
-            "remaining": t["num_edges"][index].clone(),
-        }
-        dynamic["initial_loss"] = dynamic["loss"].clone()
+        t.residuals[index] = residuals(tail_poses, head_poses, t.measurements[index])
+        t.costs[index] = costs
+        t.processed[index] = processed
+        t.loss[index] = costs.sum(-1)
+        t.remaining[index] = t.num_edges[index]
+        t.initial_loss[index] = t.loss[index]
         self._base_model = None
-        for key, value in dynamic.items():
-            if key not in t:
-                t[key] = torch.empty(
-                    (self.batch,) + value.shape[1:], dtype=value.dtype, device=self.device
-                )
-            t[key][index] = value
 
     # -- dynamics --------------------------------------------------------------------------------
 
     def action_mask(self) -> torch.Tensor:
         """``(B, n, E + 1)`` bool: unprocessed local edges, or only the no-op (index ``E``) when
         the agent has none left."""
-        t = self.tensors
-        edges_left = t["edge_mask"] & ~t["processed"][..., :-1]
-        none_left = (t["remaining"] == 0).unsqueeze(-1)
+        t = self.state
+        edges_left = t.edge_mask & ~t.processed[..., :-1]
+        none_left = (t.remaining == 0).unsqueeze(-1)
         return torch.cat([edges_left, none_left], -1)
 
     def step(self, edge: torch.Tensor, delta: torch.Tensor) -> StepResult:
         """Apply one joint action: ``edge (B, n)`` int, ``delta (B, n, 3)``."""
-        t = self.tensors
+        t = self.state
         b, n, e = self.batch, self.num_agents, self.dims.edges
         mask = self.action_mask()
         edge = edge.to(self.device, torch.int64).reshape(b, n)
@@ -344,20 +409,20 @@ class PGOCore:
                 )
         else:
             edge = torch.where(chosen, edge, mask.to(torch.int8).argmax(-1))
-        was_done = t["remaining"].sum(-1) == 0
+        was_done = t.remaining.sum(-1) == 0
 
         g = b * n
         flat_edge = edge.reshape(g, 1)
-        poses = t["poses"].view(g, -1, 3)
-        tail = torch.gather(t["tails"].view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
-        head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
+        poses = t.poses.view(g, -1, 3)
+        tail = torch.gather(t.tails.view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
+        head = torch.gather(t.heads.view(g, -1), 1, flat_edge)
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
         inside = self.subtree_members(flat_edge)
-        crossing = boundary(self, inside)  # the same edges before and after the move
+        crossing = boundary(t, inside)  # the same edges before and after the move
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            delta = delta + chosen_step(self, flat_edge, crossing).view(b, n, 3)
+            delta = delta + chosen_step(t, self.step_modes, flat_edge, crossing).view(b, n, 3)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
-        previous = t["loss"].clone()
+        previous = t.loss.clone()
         if self.correction == "subtree":
             self._move_subtree(poses, flat_edge, clipped, inside)
             change = self._refresh_boundary(crossing)
@@ -366,23 +431,23 @@ class PGOCore:
             x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
             moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
             _scatter_rows(poses, head, moved)
-            incident = _gather_rows(t["incident"].view(g, -1, self.dims.degree), head).squeeze(1)
+            incident = _gather_rows(t.incident.view(g, -1, self.dims.degree), head).squeeze(1)
             change = self._refresh_edges(incident)
             refreshed = torch.zeros(g, e + 1, dtype=torch.bool, device=self.device)
             refreshed.scatter_(1, incident, True)
         self.last_moved, self.last_refreshed = inside, refreshed
         self._base_model = None
 
-        processed = t["processed"].view(g, -1)
+        processed = t.processed.view(g, -1)
         processed.scatter_(1, flat_edge, True)
-        t["remaining"] -= (edge < e).to(torch.int64)
-        t["loss"] += change.view(b, n)
-        gain = (previous - t["loss"]) / (previous + EPSILON)
+        t.remaining -= (edge < e).to(torch.int64)
+        t.loss += change.view(b, n)
+        gain = (previous - t.loss) / (previous + EPSILON)
         reward = torch.tanh(gain).clamp(-1.0, 1.0)
-        agent_done = t["remaining"] == 0
+        agent_done = t.remaining == 0
         done = agent_done.all(-1)
         finishing = (done & ~was_done).unsqueeze(-1) & self.terminal_bonus
-        bonus = torch.log((t["initial_loss"] + EPSILON) / (t["loss"] + EPSILON))
+        bonus = torch.log((t.initial_loss + EPSILON) / (t.loss + EPSILON))
         reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
         return StepResult(reward, done, agent_done, repaired)
 
@@ -390,25 +455,25 @@ class PGOCore:
         """The Gauss–Newton quadratic model of every edge slot at the current state
         (:func:`envs.basestep.base_model`), computed once per state."""
         if self._base_model is None:
-            self._base_model = base_model(self)
+            self._base_model = base_model(self.state, self.step_modes)
         return self._base_model
 
     def chosen_base_model(self, edge: torch.Tensor) -> BaseModel:
         """The model of each agent's ``edge (B, n)`` alone (:func:`envs.basestep.chosen_model`:
         O(the edges crossing the moved subtree's boundary)), fields ``(B·n, 1, ...)``."""
-        return chosen_model(self, *self._chosen_boundary(edge))
+        return chosen_model(self.state, self.step_modes, *self._chosen_boundary(edge))
 
     def base_step(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` the Gauss–Newton step Δ_GN of each agent's ``edge (B, n)`` (0 off the
         tree), in the action's units (:func:`envs.basestep.chosen_step`)."""
-        step = chosen_step(self, *self._chosen_boundary(edge))
+        step = chosen_step(self.state, self.step_modes, *self._chosen_boundary(edge))
         return step.view(self.batch, self.num_agents, 3)
 
     def _chosen_boundary(self, edge: torch.Tensor) -> tuple[torch.Tensor, Boundary]:
         """The edge slots ``(B·n, 1)`` of ``edge (B, n)`` and the boundary of what a correction of
         each would move, at the current state."""
         flat_edge = edge.to(self.device, torch.int64).reshape(self.batch * self.num_agents, 1)
-        return flat_edge, boundary(self, self.subtree_members(flat_edge))
+        return flat_edge, boundary(self.state, self.subtree_members(flat_edge))
 
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
@@ -418,7 +483,7 @@ class PGOCore:
         delta = torch.maximum(torch.minimum(delta, bound), -bound)
         if self.action_scale == "whitened":
             g = edge.shape[0]
-            inverse_root = self.tensors["inverse_sqrt_information"].view(g, -1, 3, 3)
+            inverse_root = self.state.inverse_sqrt_information.view(g, -1, 3, 3)
             delta = (_gather_rows(inverse_root, edge) @ delta.unsqueeze(-1)).squeeze(-1)
         return torch.maximum(torch.minimum(delta, self.delta_max), -self.delta_max)
 
@@ -426,15 +491,15 @@ class PGOCore:
         """``(G, V+1)`` bool: the vertices a correction of the edge slots ``edge (G, 1)`` moves
         (the mover's subtree, a contiguous range of pre-order positions; the head alone in the
         pose mode; only the trash vertex for the no-op)."""
-        t = self.tensors
+        t = self.state
         g = edge.shape[0]
         if self.correction == "pose":
-            head = torch.gather(t["heads"].view(g, -1), 1, edge)
+            head = torch.gather(t.heads.view(g, -1), 1, edge)
             return torch.arange(self.dims.vertices + 1, device=self.device) == head
-        mover = torch.gather(t["mover"].view(g, -1), 1, edge)
-        position = t["tree_position"].view(g, -1)
+        mover = torch.gather(t.mover.view(g, -1), 1, edge)
+        position = t.tree_position.view(g, -1)
         start = torch.gather(position, 1, mover)
-        stop = torch.gather(t["tree_end"].view(g, -1), 1, mover)
+        stop = torch.gather(t.tree_end.view(g, -1), 1, mover)
         return (position >= start) & (position < stop)
 
     def subtree_move(
@@ -454,14 +519,14 @@ class PGOCore:
         """Move the vertices ``inside`` of ``poses (G, V+1, 3)`` rigidly, in place, so that the
         relative pose of each edge slot ``edge (G, 1)`` changes by ``delta (G, 1, 3)``; only the
         moved rows are computed and written."""
-        t = self.tensors
+        t = self.state
         g = edge.shape[0]
-        tail = torch.gather(t["tails"].view(g, -1), 1, edge)
-        head = torch.gather(t["heads"].view(g, -1), 1, edge)
+        tail = torch.gather(t.tails.view(g, -1), 1, edge)
+        head = torch.gather(t.heads.view(g, -1), 1, edge)
         if self.correction == "pose":
             mover = head
         else:
-            mover = torch.gather(t["mover"].view(g, -1), 1, edge)
+            mover = torch.gather(t.mover.view(g, -1), 1, edge)
         x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
         relative = between(x_p, x_q) + delta
         moves_head = (mover == head).unsqueeze(-1)
@@ -476,70 +541,84 @@ class PGOCore:
         """Recompute residuals and target costs of the edges that cross the moved subtree's
         boundary (only those, :func:`envs.basestep.boundary`); return the change of ``L`` per
         agent, ``(G,)``."""
-        t = self.tensors
+        t = self.state
         slots = crossing.slots
-        flat_poses = t["poses"].view(-1, 3)
+        flat_poses = t.poses.view(-1, 3)
         relative = between(flat_poses[crossing.tail_rows], flat_poses[crossing.head_rows])
-        r = _offset(relative, t["measurements"].view(-1, 3)[slots])
+        r = _offset(relative, t.measurements.view(-1, 3)[slots])
         if self.reward_kind == "F":  # the targets are the measurements
             target_r = r
         else:
-            target_r = _offset(relative, t["targets"].view(-1, 3)[slots])
-        cost = edge_costs(target_r, t["kappa"].view(-1)[slots], t["tau"].view(-1)[slots])
-        costs = t["costs"].view(-1)
+            target_r = _offset(relative, t.targets.view(-1, 3)[slots])
+        cost = edge_costs(target_r, t.kappa.view(-1)[slots], t.tau.view(-1)[slots])
+        costs = t.costs.view(-1)
         change = torch.zeros(crossing.crossing.shape[0], dtype=cost.dtype, device=self.device)
         change.index_add_(0, crossing.agent, cost - costs[slots])
-        t["residuals"].view(-1, 3)[slots] = r
+        t.residuals.view(-1, 3)[slots] = r
         costs[slots] = cost
         return change
 
     def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:
         """Recompute residuals and target costs of the edge slots ``incident (G, D)`` in place;
         return the change of ``L`` per agent, ``(G,)``."""
-        t = self.tensors
+        t = self.state
         g = incident.shape[0]
-        poses = t["poses"].view(g, -1, 3)
-        tails = torch.gather(t["tails"].view(g, -1), 1, incident)
-        heads = torch.gather(t["heads"].view(g, -1), 1, incident)
+        poses = t.poses.view(g, -1, 3)
+        tails = torch.gather(t.tails.view(g, -1), 1, incident)
+        heads = torch.gather(t.heads.view(g, -1), 1, incident)
         x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
-        r = residuals(x_p, x_q, _gather_rows(t["measurements"].view(g, -1, 3), incident))
+        r = residuals(x_p, x_q, _gather_rows(t.measurements.view(g, -1, 3), incident))
         cost = edge_costs(
-            residuals(x_p, x_q, _gather_rows(t["targets"].view(g, -1, 3), incident)),
-            torch.gather(t["kappa"].view(g, -1), 1, incident),
-            torch.gather(t["tau"].view(g, -1), 1, incident),
+            residuals(x_p, x_q, _gather_rows(t.targets.view(g, -1, 3), incident)),
+            torch.gather(t.kappa.view(g, -1), 1, incident),
+            torch.gather(t.tau.view(g, -1), 1, incident),
         )
-        costs = t["costs"].view(g, -1)
+        costs = t.costs.view(g, -1)
         real = incident < self.dims.edges  # padding slots point at the trash slot E
         old = torch.gather(costs, 1, incident)
         change = torch.where(real, cost - old, torch.zeros_like(cost)).sum(-1)
-        _scatter_rows(t["residuals"].view(g, -1, 3), incident, r)
+        _scatter_rows(t.residuals.view(g, -1, 3), incident, r)
         costs.scatter_(1, incident, cost)
         return change
 
     # -- observation (envs.readout) ---------------------------------------------------------------
 
     def observation(self) -> dict[str, torch.Tensor]:
-        """Per-agent padded observation (:func:`envs.readout.observe`)."""
-        return observe(self)
+        """Per-agent padded observation (:func:`envs.readout.observe`; entries and widths in
+        :mod:`envs.features`)."""
+        base = self.base_model() if self.base == "gauss-newton" else None
+        return observe(self.state, self.readout_modes, base)
+
+    def graph_batch(self, element: int | None = None) -> dict[str, torch.Tensor]:
+        """The observation and ``action_mask`` as padded graphs for a GNN (the fields of
+        ``agents.encoder.GraphBatch``): leading ``(n,)`` for batch element ``element``, else
+        ``(B·n,)`` for the whole batch."""
+        entries = {**self.observation(), "action_mask": self.action_mask()}
+        if element is not None:
+            return {key: value[element] for key, value in entries.items()}
+        g = self.batch * self.num_agents
+        return {key: value.reshape(g, *value.shape[2:]) for key, value in entries.items()}
+
+    def chosen_base_observation(self, edge: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(base_step (B·n, 3), base_model (B·n, 9))`` float32 of each agent's ``edge (B, n)``
+        alone (:func:`envs.readout.chosen_base_observation`), O(the moved subtree's boundary)."""
+        return chosen_base_observation(self.chosen_base_model(edge))
 
     def observation_update(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """What the last :meth:`step` may have changed in :meth:`observation`
         (:func:`envs.readout.observation_changes`)."""
-        return observation_changes(self)
-
-    def _cache_edge_index(self) -> None:
-        """``edge_index (B, n, 2, E)``: local (tail, head), 0 on padding (a new tensor)."""
-        t = self.tensors
-        e = self.dims.edges
-        index = torch.stack([t["tails"][..., :e], t["heads"][..., :e]], -2)
-        t["edge_index"] = torch.where(t["edge_mask"].unsqueeze(-2), index, 0)
+        if self.last_moved is None or self.last_refreshed is None:
+            raise RuntimeError("observation_update before the first step")
+        return observation_changes(
+            self.state, self.readout_modes, self.last_moved, self.last_refreshed
+        )
 
     # -- read-out --------------------------------------------------------------------------------
 
     def local_poses(self, element: int) -> list[np.ndarray]:
         """Each agent's current local copy ``(n_r, 3)`` of element ``element``, rows in
         ``problem.local_vertices(r)`` order (feed to consensus / ``problem.assemble``)."""
-        t = self.tensors
-        poses = t["poses"][element].detach().cpu().numpy()
-        counts = t["node_mask"][element].sum(-1).cpu().numpy()
+        t = self.state
+        poses = t.poses[element].detach().cpu().numpy()
+        counts = t.node_mask[element].sum(-1).cpu().numpy()
         return [poses[agent, :count] for agent, count in enumerate(counts)]

@@ -85,13 +85,13 @@ class Expert:
     def edge(self) -> torch.Tensor:
         """``(B, n)`` int64: the unprocessed tree edge whose moved vertex comes first in pre-order,
         else the lowest unprocessed edge, else the no-op ``E``."""
-        t = self.core.tensors
+        t = self.core.state
         e, v = self.core.dims.edges, self.core.dims.vertices
         g = self.core.batch * self.core.num_agents
-        mover = t["mover"].view(g, -1)[:, :e]
-        position = torch.gather(t["tree_position"].view(g, -1), 1, mover)
+        mover = t.mover.view(g, -1)[:, :e]
+        position = torch.gather(t.tree_position.view(g, -1), 1, mover)
         index = torch.arange(e, device=self.core.device).expand(g, e)
-        score = torch.where(t["tree_edge"].view(g, -1)[:, :e], position, v + 1 + index)
+        score = torch.where(t.tree_edge.view(g, -1)[:, :e], position, v + 1 + index)
         open_ = self.core.action_mask().view(g, -1)[:, :e]
         score = torch.where(open_, score, torch.full_like(score, 2 * (v + e + 2)))
         best = score.argmin(-1)
@@ -101,17 +101,17 @@ class Expert:
     def delta(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` the expert's Δ on the edges ``edge (B, n)`` from the current state, in
         the core's action units (not clipped: the core clips)."""
-        core, t = self.core, self.core.tensors
+        core, t = self.core, self.core.state
         g = core.batch * core.num_agents
         flat_edge = edge.to(core.device, torch.int64).reshape(g, 1)
-        poses = t["poses"].view(g, -1, 3)
+        poses = t.poses.view(g, -1, 3)
         optimum = self.optimum().view(g, -1, 3)
-        tail = torch.gather(t["tails"].view(g, -1), 1, flat_edge)
-        head = torch.gather(t["heads"].view(g, -1), 1, flat_edge)
+        tail = torch.gather(t.tails.view(g, -1), 1, flat_edge)
+        head = torch.gather(t.heads.view(g, -1), 1, flat_edge)
         x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
         if core.correction == "subtree":
             target = between(_gather_rows(optimum, tail), _gather_rows(optimum, head))
-            on_tree = torch.gather(t["tree_edge"].view(g, -1), 1, flat_edge).unsqueeze(-1)
+            on_tree = torch.gather(t.tree_edge.view(g, -1), 1, flat_edge).unsqueeze(-1)
         else:
             target = between(x_p, _gather_rows(optimum, head))
             on_tree = torch.ones_like(flat_edge, dtype=torch.bool).unsqueeze(-1)
@@ -119,7 +119,7 @@ class Expert:
         delta = torch.cat([delta[..., :2], wrap(delta[..., 2:])], -1)
         delta = torch.where(on_tree, delta, torch.zeros_like(delta))
         if core.action_scale == "whitened":
-            root = _gather_rows(t["sqrt_information"].view(g, -1, 3, 3), flat_edge)
+            root = _gather_rows(t.sqrt_information.view(g, -1, 3, 3), flat_edge)
             delta = (root @ delta.unsqueeze(-1)).squeeze(-1)
         return delta.view(core.batch, core.num_agents, 3)
 
@@ -136,7 +136,7 @@ class Expert:
         mask = core.action_mask()
         if core.correction != "subtree":
             return mask
-        tree = core.tensors["tree_edge"][..., : mask.shape[-1] - 1] & mask[..., :-1]
+        tree = core.state.tree_edge[..., : mask.shape[-1] - 1] & mask[..., :-1]
         tree = torch.cat([tree, torch.zeros_like(tree[..., :1])], -1)
         return torch.where(tree.any(-1, keepdim=True), tree, mask)
 

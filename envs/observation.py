@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from envs.features import EDGE, EDGE_COLUMN, NODE
 from popbench import se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
@@ -21,11 +22,8 @@ from popbench.objective import weights
 
 REWARDS = ("localisation", "F")
 NUM_KINDS = 4
-# node features: x, y (m, in the frame of the agent's first owned pose), sin θ, cos θ, log(1+deg),
-# owned flag
-NODE_FEATURES = 6
-# edge attributes: kind one-hot (4), log diag Λ (3), gap feature, ‖t̃‖, sin θ̃, cos θ̃
-EDGE_FEATURES = 11
+NODE_FEATURES = len(NODE)  # the node feature columns, envs.features.NODE
+EDGE_FEATURES = len(EDGE)  # the edge attribute columns, envs.features.EDGE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,10 +170,11 @@ def whiten_attributes(pack: dict[str, np.ndarray]) -> None:
     ``log diag Λ`` centred on the agent's mean over its edges."""
     attr, mask = pack["edge_attr"], pack["edge_mask"]
     e = attr.shape[1]
-    attr[..., 8] *= np.sqrt(pack["tau"][:, :e]).astype(np.float32)
+    attr[..., EDGE_COLUMN["length"]] *= np.sqrt(pack["tau"][:, :e]).astype(np.float32)
+    info = slice(EDGE_COLUMN["log_info_x"], EDGE_COLUMN["log_info_theta"] + 1)
     count = np.maximum(mask.sum(1, keepdims=True), 1)[..., None]
-    mean = (attr[..., 4:7] * mask[..., None]).sum(1, keepdims=True) / count
-    attr[..., 4:7] = np.where(mask[..., None], attr[..., 4:7] - mean, 0.0)
+    mean = (attr[..., info] * mask[..., None]).sum(1, keepdims=True) / count
+    attr[..., info] = np.where(mask[..., None], attr[..., info] - mean, 0.0)
 
 
 def edge_attributes(

@@ -180,7 +180,7 @@ class PGOEnv(EnvBase):
         elements = self._elements_to_reset(tensordict)
         problems = [self.sampler.draw(element) for element in elements]
         self.core.load(problems, elements)
-        done = self.core.tensors["remaining"].sum(-1) == 0
+        done = self.core.state.remaining.sum(-1) == 0
         return self._output(done, reward=None)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDict:
@@ -197,7 +197,7 @@ class PGOEnv(EnvBase):
         """Batch elements flagged by ``"_reset"`` (root ``(B, 1)`` or ``("agents", "_reset")``
         ``(B, n, 1)``); every element when there is no flag or no state yet."""
         every = list(range(self.batch_size[0]))
-        if tensordict is None or not self.core.tensors:
+        if tensordict is None or not self.core.loaded:
             return every
         flags = tensordict.get("_reset", None)
         if flags is None:
@@ -243,7 +243,7 @@ class PGOEnv(EnvBase):
                 "right": self.expert.right_edges(),
                 "expert_edge": edge,
                 "expert_delta": self.expert.actor_delta(edge),
-                "outlier": self.core.tensors["outlier"][..., :e].clone(),
+                "outlier": self.core.state.outlier[..., :e].clone(),
             },
             batch_size=(b, n),
             device=self.device,

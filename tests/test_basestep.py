@@ -24,22 +24,22 @@ MODES = [  # correction modes with the base step, metric and whitened
 
 def local_f(core: PGOCore, poses: torch.Tensor) -> torch.Tensor:
     """(G,) every agent's local F at ``poses (G, V+1, 3)``."""
-    t = core.tensors
+    t = core.state
     g = poses.shape[0]
-    tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+    tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
     r = residuals(
-        _gather_rows(poses, tails), _gather_rows(poses, heads), t["measurements"].view(g, -1, 3)
+        _gather_rows(poses, tails), _gather_rows(poses, heads), t.measurements.view(g, -1, 3)
     )
-    weight = torch.stack([t["tau"].view(g, -1)] * 2 + [t["kappa"].view(g, -1)], -1)
+    weight = torch.stack([t.tau.view(g, -1)] * 2 + [t.kappa.view(g, -1)], -1)
     return (weight * r * r).sum((-1, -2))
 
 
 def finite_difference_model(core: PGOCore, edge: int, step: float = 1e-5):
     """(G, 3) the gradient of ½ F in the action Δ of slot ``edge`` by central differences of
     the moved local F (the model is F ≈ F₀ + 2gᵀΔ + ΔᵀHΔ)."""
-    t = core.tensors
+    t = core.state
     g = core.batch * core.num_agents
-    poses = t["poses"].view(g, -1, 3)
+    poses = t.poses.view(g, -1, 3)
     slots = torch.full((g, 1), edge)
 
     def f(delta: torch.Tensor) -> torch.Tensor:
@@ -63,10 +63,10 @@ def test_base_gradient_matches_finite_differences(modes: dict) -> None:
         edge = torch.where(mask, torch.rand(mask.shape, generator=generator), -1.0).argmax(-1)
         core.step(edge, 0.5 * torch.randn(2, 3, 3, generator=generator, dtype=torch.float64))
     model = core.base_model()
-    on_tree = core.tensors["tree_edge"].view(6, -1) if modes["correction"] == "subtree" else None
+    on_tree = core.state.tree_edge.view(6, -1) if modes["correction"] == "subtree" else None
     checked = 0
     for edge in range(core.dims.edges):
-        real = core.tensors["edge_mask"].view(6, -1)[:, edge]
+        real = core.state.edge_mask.view(6, -1)[:, edge]
         if on_tree is not None:
             real = real & on_tree[:, edge]
         if not bool(real.any()):

@@ -35,9 +35,9 @@ def make_core(problems, **modes) -> PGOCore:
 
 
 def relative_poses(core: PGOCore, element: int, agent: int, edges: np.ndarray) -> np.ndarray:
-    poses = core.tensors["poses"][element, agent].numpy()
-    tails = core.tensors["tails"][element, agent].numpy()[edges]
-    heads = core.tensors["heads"][element, agent].numpy()[edges]
+    poses = core.state.poses[element, agent].numpy()
+    tails = core.state.tails[element, agent].numpy()[edges]
+    heads = core.state.heads[element, agent].numpy()[edges]
     return se2.between(poses[tails], poses[heads])
 
 
@@ -94,25 +94,25 @@ def test_subtree_move_changes_one_tree_edge_and_state_stays_exact(reward: str) -
         mask = core.action_mask().flatten(0, 1).to(torch.float64)
         edge = torch.multinomial(mask, 1, generator=generator).view(2, 3)
         delta = (torch.rand(2, 3, 3, generator=generator, dtype=torch.float64) - 0.5) * 0.4
-        before = core.tensors["poses"].clone()
+        before = core.state.poses.clone()
         core.step(edge, delta)
         for element in range(2):
             for agent in range(3):
                 chosen = int(edge[element, agent])
                 if chosen == core.dims.edges:
                     continue
-                tree = np.flatnonzero(core.tensors["tree_edge"][element, agent].numpy())
+                tree = np.flatnonzero(core.state.tree_edge[element, agent].numpy())
                 after = relative_poses(core, element, agent, tree)
-                core.tensors["poses"], moved = before, core.tensors["poses"]
+                core.state.poses, moved = before, core.state.poses
                 old = relative_poses(core, element, agent, tree)
                 change = relative_poses(core, element, agent, np.array([chosen]))
-                core.tensors["poses"] = moved
+                core.state.poses = moved
                 change = relative_poses(core, element, agent, np.array([chosen])) - change
                 change[:, 2] = se2.wrap(change[:, 2])
                 np.testing.assert_allclose(change[0], delta[element, agent].numpy(), atol=1e-9)
                 others = tree != chosen
                 if chosen not in tree:  # a loop closure moves its mover's subtree: the mover's
-                    mover = int(core.tensors["mover"][element, agent, chosen])  # parent edge
+                    mover = int(core.state.mover[element, agent, chosen])  # parent edge
                     parent_edge = spanning_tree(
                         problems[element].local_graph(agent).graph
                     ).parent_edge[mover]
@@ -123,14 +123,14 @@ def test_subtree_move_changes_one_tree_edge_and_state_stays_exact(reward: str) -
     for element, problem in enumerate(problems):
         local_poses = core.local_poses(element)
         np.testing.assert_allclose(
-            core.tensors["loss"][element].numpy(),
+            core.state.loss[element].numpy(),
             reference_losses(problem, local_poses, reward),
             rtol=1e-9,
         )
         for agent, local in enumerate(problem.local_graphs):
             m = local.graph.num_edges
             np.testing.assert_allclose(
-                core.tensors["residuals"][element, agent, :m].numpy(),
+                core.state.residuals[element, agent, :m].numpy(),
                 objective.residuals(local.graph, local_poses[agent]),
                 atol=1e-9,
             )
@@ -170,8 +170,8 @@ def test_whitened_action_and_residuals() -> None:
     problem = make_problem(seed=7, **SMALL)
     metric = make_core([problem], correction="subtree")
     whitened = make_core([problem], correction="subtree", action_scale="whitened")
-    root = whitened.tensors["sqrt_information"][0, :, 0]  # edge 0 of every agent
-    information = whitened.tensors["sqrt_information"][0, 0, 0] @ root[0]
+    root = whitened.state.sqrt_information[0, :, 0]  # edge 0 of every agent
+    information = whitened.state.sqrt_information[0, 0, 0] @ root[0]
     np.testing.assert_allclose(
         information.numpy(), problem.local_graph(0).graph.information[0], rtol=1e-9
     )
@@ -179,16 +179,16 @@ def test_whitened_action_and_residuals() -> None:
     white_delta = (root @ delta[0].unsqueeze(-1)).squeeze(-1).unsqueeze(0)
     metric.step(torch.zeros(1, 3, dtype=torch.int64), delta)
     whitened.step(torch.zeros(1, 3, dtype=torch.int64), white_delta)
-    torch.testing.assert_close(whitened.tensors["poses"], metric.tensors["poses"])
+    torch.testing.assert_close(whitened.state.poses, metric.state.poses)
     r = metric.observation()["residuals"].to(torch.float64)
-    expected = (whitened.tensors["sqrt_information"][..., :-1, :, :] @ r.unsqueeze(-1)).squeeze(-1)
+    expected = (whitened.state.sqrt_information[..., :-1, :, :] @ r.unsqueeze(-1)).squeeze(-1)
     torch.testing.assert_close(
         whitened.observation()["residuals"].to(torch.float64), expected, rtol=1e-5, atol=1e-5
     )
 
 
 def run_episode(core: PGOCore, policy) -> None:
-    for _ in range(int(core.tensors["num_edges"].max())):
+    for _ in range(int(core.state.num_edges.max())):
         core.step(*policy.act())
 
 
@@ -199,7 +199,7 @@ def test_expert_reaches_the_local_optimum_in_one_episode() -> None:
     core = make_core(problems, correction="subtree", reward="F")
     expert = Expert(core)
     clipped = torch.zeros(2, 3, dtype=torch.bool)
-    for _ in range(int(core.tensors["num_edges"].max())):
+    for _ in range(int(core.state.num_edges.max())):
         edge, delta = expert.act()
         clipped |= (delta.abs() > core.delta_max).any(-1)
         core.step(edge, delta)
@@ -210,7 +210,7 @@ def test_expert_reaches_the_local_optimum_in_one_episode() -> None:
             if clipped[element, agent]:
                 continue
             best = objective.objective(local.graph, optima[agent])
-            reached = float(core.tensors["loss"][element, agent])
+            reached = float(core.state.loss[element, agent])
             assert abs(reached - best) <= 1e-6 * best + 1e-12  # a tree-like graph has F* = 0
             checked += best > 1.0
 
@@ -230,11 +230,11 @@ def test_expert_labels_any_state_and_skips_outliers() -> None:
             torch.rand(1, 3, 3, generator=generator, dtype=torch.float64) * 0.1,
         )
     edge = expert.edge()
-    tree_left = core.tensors["tree_edge"][0, :, :-1] & core.action_mask()[0, :, :-1]
+    tree_left = core.state.tree_edge[0, :, :-1] & core.action_mask()[0, :, :-1]
     for agent in range(3):
         if tree_left[agent].any():
-            assert bool(core.tensors["tree_edge"][0, agent, edge[0, agent]])
-    off_tree = ~core.tensors["tree_edge"][0, :, :-1] & core.tensors["edge_mask"][0]
+            assert bool(core.state.tree_edge[0, agent, edge[0, agent]])
+    off_tree = ~core.state.tree_edge[0, :, :-1] & core.state.edge_mask[0]
     noop = torch.full((3,), core.dims.edges)
     non_tree = torch.where(off_tree.any(-1), off_tree.to(torch.int8).argmax(-1), noop)[None]
     assert torch.equal(expert.delta(non_tree), torch.zeros(1, 3, 3, dtype=torch.float64))
@@ -258,9 +258,9 @@ def test_gauss_newton_sweep_lowers_local_F() -> None:
     problems = [make_problem(seed=seed, **SMALL) for seed in (13, 14)]
     for correction in ("subtree", "pose"):
         core = make_core(problems, correction=correction, reward="F", place_separators=True)
-        start = core.tensors["loss"].sum(-1).clone()
+        start = core.state.loss.sum(-1).clone()
         run_episode(core, GaussNewtonSweep(core))
-        assert bool((core.tensors["loss"].sum(-1) < 0.8 * start).all())
+        assert bool((core.state.loss.sum(-1) < 0.8 * start).all())
 
 
 def test_gauss_newton_base_adds_one_sweep_step_to_the_action() -> None:
@@ -270,20 +270,20 @@ def test_gauss_newton_base_adds_one_sweep_step_to_the_action() -> None:
     modes = {"correction": "subtree", "action_scale": "whitened", "reward": "F"}
     plain, based = make_core(problems, **modes), make_core(problems, **modes, base="gauss-newton")
     sweep = GaussNewtonSweep(plain)
-    for _ in range(int(plain.tensors["num_edges"].max())):
+    for _ in range(int(plain.state.num_edges.max())):
         edge, delta = sweep.act()
         plain.step(edge, delta)
         based.step(edge, torch.zeros_like(delta))
-    assert torch.allclose(plain.tensors["poses"], based.tensors["poses"], atol=1e-12)
+    assert torch.allclose(plain.state.poses, based.state.poses, atol=1e-12)
     expert_core = make_core(problems, **modes)
     residual_core = make_core(problems, **modes, base="gauss-newton")
     expert, residual_expert = Expert(expert_core), Expert(residual_core)
-    for _ in range(int(expert_core.tensors["num_edges"].max())):
+    for _ in range(int(expert_core.state.num_edges.max())):
         edge, delta = expert.act()
         expert_core.step(edge, delta)
         residual = residual_expert.delta(edge) - residual_core.base_step(edge)
         residual_core.step(edge, residual)
-    assert torch.allclose(expert_core.tensors["poses"], residual_core.tensors["poses"], atol=1e-9)
+    assert torch.allclose(expert_core.state.poses, residual_core.state.poses, atol=1e-9)
     with pytest.raises(ValueRangeError, match="gauss-newton"):
         make_core(problems, base="newton")
 
@@ -313,9 +313,9 @@ def test_moved_rows_equal_a_rigid_motion_of_the_walked_subtree(correction: str) 
         mask = core.action_mask().flatten(0, 1).to(torch.float64)
         edge = torch.multinomial(mask, 1, generator=generator).view(2, 3)
         delta = (torch.rand(2, 3, 3, generator=generator, dtype=torch.float64) - 0.5) * 0.4
-        before = core.tensors["poses"].clone().numpy()
+        before = core.state.poses.clone().numpy()
         core.step(edge, delta)
-        after = core.tensors["poses"].numpy()
+        after = core.state.poses.numpy()
         for element in range(2):
             for agent in range(3):
                 chosen = int(edge[element, agent])
@@ -323,14 +323,14 @@ def test_moved_rows_equal_a_rigid_motion_of_the_walked_subtree(correction: str) 
                 if chosen == core.dims.edges:  # the no-op moves nothing real
                     np.testing.assert_array_equal(new[:-1], old[:-1])
                     continue
-                t = core.tensors
-                tail = int(t["tails"][element, agent, chosen])
-                head = int(t["heads"][element, agent, chosen])
+                t = core.state
+                tail = int(t.tails[element, agent, chosen])
+                head = int(t.heads[element, agent, chosen])
                 if correction == "pose":
                     mover, parent = head, None
                 else:
-                    mover = int(t["mover"][element, agent, chosen])
-                    parent = t["tree_parent"][element, agent].numpy()
+                    mover = int(t.mover[element, agent, chosen])
+                    parent = t.tree_parent[element, agent].numpy()
                 count = problems[element].local_graphs[agent].num_vertices
                 if parent is None:
                     subtree = np.arange(count) == mover

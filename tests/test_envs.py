@@ -86,37 +86,37 @@ def test_correction_moves_head_in_tail_frame() -> None:
     edge = 0  # 0 → 1, both owned by robot 0: local ids 0 and 1
     assert (local.graph.tails[edge], local.graph.heads[edge]) == (0, 1)
     x_p, x_q = np.array([1.0, 2.0, np.pi / 2]), np.array([1.0, 3.0, np.pi / 2])
-    core.tensors["poses"][0, 0, 0] = torch.tensor(x_p)
-    core.tensors["poses"][0, 0, 1] = torch.tensor(x_q)
+    core.state.poses[0, 0, 0] = torch.tensor(x_p)
+    core.state.poses[0, 0, 1] = torch.tensor(x_q)
     delta = torch.zeros(1, 2, 3, dtype=torch.float64)
     delta[0, 0] = torch.tensor([0.1, 0.2, 0.05])
     edges = torch.tensor([[edge, 0]])
     core.step(edges, delta)
     # between(x_p, x_q) = (1, 0, 0); + Δ = (1.1, 0.2, 0.05); rotated by +90° about x_p:
     expected = np.array([1.0 - 0.2, 2.0 + 1.1, np.pi / 2 + 0.05])
-    np.testing.assert_allclose(core.tensors["poses"][0, 0, 1].numpy(), expected, atol=1e-12)
-    np.testing.assert_allclose(core.tensors["poses"][0, 0, 0].numpy(), x_p)  # tail unchanged
+    np.testing.assert_allclose(core.state.poses[0, 0, 1].numpy(), expected, atol=1e-12)
+    np.testing.assert_allclose(core.state.poses[0, 0, 0].numpy(), x_p)  # tail unchanged
     # the other agent's copy of its own first pose moved by exactly its own zero correction
     np.testing.assert_allclose(
-        core.tensors["poses"][0, 1, 0].numpy(), problem.graph.poses[3], atol=1e-12
+        core.state.poses[0, 1, 0].numpy(), problem.graph.poses[3], atol=1e-12
     )
 
 
 def test_correction_is_clipped_and_wrapped() -> None:
     problem = hand_problem()
     core = make_core([problem])
-    x_p = core.tensors["poses"][0, 0, 0].clone()
-    x_q = core.tensors["poses"][0, 0, 1].clone()
-    core.tensors["poses"][0, 0, 1, 2] = torch.pi - 0.1 + x_p[2]
-    before = se2.between(x_p.numpy(), core.tensors["poses"][0, 0, 1].numpy())
+    x_p = core.state.poses[0, 0, 0].clone()
+    x_q = core.state.poses[0, 0, 1].clone()
+    core.state.poses[0, 0, 1, 2] = torch.pi - 0.1 + x_p[2]
+    before = se2.between(x_p.numpy(), core.state.poses[0, 0, 1].numpy())
     delta = torch.tensor([[[2.0, -2.0, 1.0], [0.0, 0.0, 0.0]]], dtype=torch.float64)
     core.step(torch.tensor([[0, 0]]), delta)
-    after = se2.between(x_p.numpy(), core.tensors["poses"][0, 0, 1].numpy())
+    after = se2.between(x_p.numpy(), core.state.poses[0, 0, 1].numpy())
     change = after - before
     change[2] = se2.wrap(change[2])
     np.testing.assert_allclose(change, [0.5, -0.5, 0.3], atol=1e-12)
-    assert -np.pi <= core.tensors["poses"][0, 0, 1, 2] < np.pi
-    assert not torch.equal(x_q, core.tensors["poses"][0, 0, 1])
+    assert -np.pi <= core.state.poses[0, 0, 1, 2] < np.pi
+    assert not torch.equal(x_q, core.state.poses[0, 0, 1])
 
 
 @pytest.mark.parametrize("reward", ["localisation", "F"])
@@ -130,14 +130,14 @@ def test_incremental_state_matches_objective(reward: str) -> None:
     for element, problem in enumerate(problems):
         local_poses = core.local_poses(element)
         np.testing.assert_allclose(
-            core.tensors["loss"][element].numpy(),
+            core.state.loss[element].numpy(),
             reference_losses(problem, local_poses, reward),
             rtol=1e-9,
         )
         for agent, local in enumerate(problem.local_graphs):
             m = local.graph.num_edges
             np.testing.assert_allclose(
-                core.tensors["residuals"][element, agent, :m].numpy(),
+                core.state.residuals[element, agent, :m].numpy(),
                 objective.residuals(local.graph, local_poses[agent]),
                 atol=1e-12,
             )
@@ -184,7 +184,7 @@ def test_invalid_edge_raises_or_is_repaired() -> None:
     core.step(torch.tensor([[0, 1]]), torch.zeros(1, 2, 3))
     result = core.step(torch.tensor([[0, noop]]), torch.zeros(1, 2, 3))  # both invalid
     assert result.repaired[0].tolist() == [True, True]
-    processed = core.tensors["processed"][0, :, :noop]
+    processed = core.state.processed[0, :, :noop]
     assert processed[0, :2].all() and processed[1, [0, 1]].all()  # lowest unprocessed taken
 
 
@@ -225,7 +225,7 @@ def test_random_rollout_processes_every_edge_once(torchrl_env) -> None:
     td = torchrl_env.reset()
     core = torchrl_env.core
     edges = core.dims.edges
-    horizon = core.tensors["num_edges"].max(-1).values.tolist()
+    horizon = core.state.num_edges.max(-1).values.tolist()
     counts = torch.zeros(4, 3, edges + 1, dtype=torch.int64)
     done_at = [None] * 4
     for step in range(1, max(horizon) + 1):
@@ -242,9 +242,9 @@ def test_random_rollout_processes_every_edge_once(torchrl_env) -> None:
         td = step_mdp(td)
     assert done_at == horizon
     real = counts[..., :edges]
-    assert torch.equal(real, core.tensors["edge_mask"].to(torch.int64))  # once each, no padding
+    assert torch.equal(real, core.state.edge_mask.to(torch.int64))  # once each, no padding
     noops = counts[..., edges]
-    assert torch.equal(noops, max(horizon) - core.tensors["num_edges"])  # no-op only when done
+    assert torch.equal(noops, max(horizon) - core.state.num_edges)  # no-op only when done
 
 
 def test_seeding_makes_rollouts_identical() -> None:
@@ -264,11 +264,11 @@ def test_seeding_makes_rollouts_identical() -> None:
 def test_partial_reset_restarts_only_flagged_elements(torchrl_env) -> None:
     td = torchrl_env.reset()
     td = torchrl_env.rand_step(td)
-    before = torchrl_env.core.tensors["processed"].clone()
+    before = torchrl_env.core.state.processed.clone()
     names = [problem.graph.name for problem in torchrl_env.core.problems]
     flags = torch.tensor([[False], [True], [False], [False]])
     out = torchrl_env.reset(td["next"].clone().set("_reset", flags))
-    after = torchrl_env.core.tensors["processed"]
+    after = torchrl_env.core.state.processed
     assert torch.equal(after[[0, 2, 3]], before[[0, 2, 3]])
     assert not after[1, :, :-1].any()
     assert torchrl_env.core.problems[1].graph.name != names[1]
@@ -291,7 +291,7 @@ def test_parallel_api_and_torchrl_wrapper() -> None:
 
     wrapped = PettingZooWrapper(env=make_pettingzoo_env(seed=0, **SMALL))
     td = wrapped.rollout(500)
-    horizon = wrapped._env.core.tensors["num_edges"].max().item()
+    horizon = wrapped._env.core.state.num_edges.max().item()
     assert td.shape == (horizon,)
     assert td["next", "agent", "reward"].shape == (horizon, 3, 1)
     assert td["next", "done"][-1].all() and not td["next", "done"][:-1].any()
@@ -324,11 +324,11 @@ def test_dataset_env_splits_the_graph() -> None:
     problem = env.core.problems[0]
     assert env.core.reward_kind == "F"
     assert problem.graph.num_edges == graph.num_edges
-    counts = env.core.tensors["num_edges"][0]
+    counts = env.core.state.num_edges[0]
     inter = problem.inter_robot_edges.size
     assert int(counts.sum()) == graph.num_edges + inter  # inter-robot edges held twice
     np.testing.assert_allclose(
-        env.core.tensors["loss"][0].numpy(),
+        env.core.state.loss[0].numpy(),
         reference_losses(problem, env.core.local_poses(0), "F"),
         rtol=1e-9,
     )

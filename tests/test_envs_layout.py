@@ -8,7 +8,7 @@ import ast
 from pathlib import Path
 
 ENVS = Path(__file__).resolve().parents[1] / "envs"
-DYNAMICS = {"core", "basestep", "readout", "geometry", "observation", "tree"}
+DYNAMICS = {"core", "basestep", "readout", "geometry", "observation", "tree", "state", "features"}
 POLICIES = {"expert", "sweep"}
 
 
@@ -57,3 +57,14 @@ def test_the_checker_sees_imports() -> None:  # the two tests above cannot pass 
     assert {"basestep", "readout", "tree"} <= GRAPH["core"]
     assert "core" in GRAPH["sweep"] and "expert" in GRAPH["sweep"]
     assert "core" not in GRAPH["readout"]  # imported for its type only
+
+
+def test_the_base_step_and_the_read_out_are_functions_of_the_state() -> None:
+    """envs.basestep and envs.readout take the declared state (envs.state.CoreState), not the
+    core: neither names PGOCore, not even for its type."""
+    for module in ("basestep", "readout"):
+        tree = ast.parse((ENVS / f"{module}.py").read_text())
+        names = {node.id for node in ast.walk(tree) if isinstance(node, ast.Name)}
+        names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
+        assert "PGOCore" not in names, f"envs.{module} names PGOCore"
+        assert "CoreState" in names  # the checker reads names

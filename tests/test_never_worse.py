@@ -127,7 +127,7 @@ def test_a_base_step_longer_than_the_bound_keeps_its_direction() -> None:
     problems = [make_problem(robots=3, poses_per_robot=16, seed=seed) for seed in (2, 3)]
     free, tight = trajectory_core(problems), trajectory_core(problems, delta_max=(0.01,) * 3)
     edge = Expert(free).edge()
-    inverse_root = free.tensors["inverse_sqrt_information"]
+    inverse_root = free.state.inverse_sqrt_information
     flat = edge.reshape(-1)
 
     def metric(core):  # (G, 3) the step in metres / radians

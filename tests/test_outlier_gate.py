@@ -70,7 +70,6 @@ def test_the_reconciled_state_shows_outliers_the_episode_start_hides(corrupted) 
     """At the ground truth every injected outlier has a large residual in the reconciled state,
     also an inter-robot loop closure whose separator copy the episode's start places from it."""
     from envs.core import PGOCore
-    from envs.observation import Dimensions
 
     truth = corrupted.graph.ground_truth
     state = reconciled_state(corrupted, truth, TRAJECTORY_TASK)
@@ -81,8 +80,7 @@ def test_the_reconciled_state_shows_outliers_the_episode_start_hides(corrupted) 
     assert float(size[outlier].min()) > 2 * float(size[mask & ~state.outlier].max())
 
     placed = dataclasses.replace(corrupted, graph=corrupted.graph.replace(poses=truth))
-    core = PGOCore(3, Dimensions.of([placed]), 1, reward="F", **TRAJECTORY_TASK.core_options())
-    core.load([placed], [0])
+    core = PGOCore.for_problems([placed], TRAJECTORY_TASK)
     start = core.observation()["residuals"][0].norm(dim=-1)
     kinds = torch.as_tensor(corrupted.graph.kinds)[state.edge_ids.clamp(min=0)]
     hidden = outlier & (kinds == EdgeKind.INTER_LOOP) & (start < 1e-9)
@@ -146,3 +144,22 @@ def test_f1_threshold_on_a_hand_made_case() -> None:
     outliers = [np.array([True, False, True, False, False]), np.array([False])]
     assert f1_threshold(gates, outliers) == pytest.approx(0.35)
     assert f1_threshold([np.array([0.2, 0.9])], [np.array([False, False])]) == 0.5
+
+
+def test_the_gate_in_the_episode_core_equals_the_gate_in_a_fresh_core(
+    checkpoint, fit, corrupted
+) -> None:
+    """prop-v1 reads the gate in its episode's core, restarted at the reconciled estimate: the
+    same gate, bit for bit, as a core built for it, and the episode's poses are kept."""
+    actor, task = cached_actor(str(checkpoint), "cpu")
+    with torch.no_grad():
+        episode = run_episode(actor, corrupted, task=task)
+    kept = [poses.copy() for poses in episode.local_poses]
+    poses = reconcile(corrupted, episode.local_poses, "aligned-admm").poses
+    fresh = reconciled_gate(fit.gate.encoder, task, corrupted, poses)
+    reused = reconciled_gate(fit.gate.encoder, task, corrupted, poses, episode.core)
+    np.testing.assert_array_equal(reused, fresh)
+    for before, after in zip(kept, episode.local_poses, strict=True):
+        np.testing.assert_array_equal(before, after)
+    state = reconciled_state(corrupted, poses, task, episode.core)
+    assert not state.graphs.processed.any()  # restarted: every edge open again

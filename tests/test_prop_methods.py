@@ -89,7 +89,7 @@ def test_incremental_inference_equals_full_forward(problem, modes: dict) -> None
     dims = Dimensions.of([problem])
     core = PGOCore(n, dims, 1, delta_max=TINY.delta_max, reward="F", **modes)
     core.load([problem], [0])
-    t = core.tensors
+    t = core.state
 
     def observation() -> dict[str, torch.Tensor]:
         return {key: value[0] for key, value in core.observation().items()}
@@ -97,24 +97,24 @@ def test_incremental_inference_equals_full_forward(problem, modes: dict) -> None
     def full_graphs() -> GraphBatch:
         return GraphBatch(**observation(), action_mask=core.action_mask()[0])
 
-    policy = IncrementalPolicy(actor, full_graphs(), t["incident"][0])
+    policy = IncrementalPolicy(actor, full_graphs(), t.incident[0])
     memory = actor.initial_memory(n)
     prev_edge = torch.zeros(n, dims.edges + 1)
     prev_delta = torch.zeros(n, 3)
     rows = torch.arange(n)
     reframes = 0
     with torch.no_grad():
-        for _ in range(int(t["num_edges"].max())):
+        for _ in range(int(t.num_edges.max())):
             reference = actor(full_graphs(), memory, prev_edge, prev_delta, deterministic=True)
             edge, delta = policy.act(core.action_mask()[0])
             assert torch.equal(edge, reference.edge)
             torch.testing.assert_close(delta, reference.delta, atol=1e-5, rtol=1e-4)
             memory, prev_edge, prev_delta = reference.memory, reference.edge_weights, delta
-            reframes += int((t["heads"][0][rows, edge] == 0).sum())
+            reframes += int((t.heads[0][rows, edge] == 0).sum())
             core.step(edge.view(1, n), delta.view(1, n, 3))
             policy.observe_update(*core.observation_update())
         final = actor(full_graphs(), memory, prev_edge, prev_delta, deterministic=True)
-    assert torch.equal(policy.inliers(), final.encoding.inliers() & t["edge_mask"][0])
+    assert torch.equal(policy.inliers(), final.encoding.inliers() & t.edge_mask[0])
     if not modes:
         assert reframes > 0  # the frame-vertex path (whole-graph refresh) was exercised
 
@@ -314,23 +314,23 @@ def test_boundary_step_equals_the_full_recomputation_on_the_quick_table(monkeypa
 
     calls = {"step": 0, "refresh": 0}
 
-    def full_step(core, edge, crossing):
+    def full_step(state, modes, edge, crossing):
         calls["step"] += 1
-        return _gather_rows(base_model(core).step, edge)
+        return _gather_rows(base_model(state, modes).step, edge)
 
     def full_refresh(core, crossing):
         calls["refresh"] += 1
-        t = core.tensors
+        t = core.state
         g = crossing.crossing.shape[0]
-        poses = t["poses"].view(g, -1, 3)
-        tails, heads = t["tails"].view(g, -1), t["heads"].view(g, -1)
+        poses = t.poses.view(g, -1, 3)
+        tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
         x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
-        r = residuals(x_p, x_q, t["measurements"].view(g, -1, 3))
-        cost = objective.edge_costs(r, t["kappa"].view(g, -1), t["tau"].view(g, -1))
-        real = t["edge_mask"].view(g, -1)
-        change = (cost[:, :-1] * real).sum(-1) - (t["costs"].view(g, -1)[:, :-1] * real).sum(-1)
-        t["residuals"].view(g, -1, 3).copy_(r)
-        t["costs"].view(g, -1).copy_(cost)
+        r = residuals(x_p, x_q, t.measurements.view(g, -1, 3))
+        cost = objective.edge_costs(r, t.kappa.view(g, -1), t.tau.view(g, -1))
+        real = t.edge_mask.view(g, -1)
+        change = (cost[:, :-1] * real).sum(-1) - (t.costs.view(g, -1)[:, :-1] * real).sum(-1)
+        t.residuals.view(g, -1, 3).copy_(r)
+        t.costs.view(g, -1).copy_(cost)
         return change
 
     monkeypatch.setattr(envs.core, "chosen_step", full_step)

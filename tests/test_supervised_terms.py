@@ -82,10 +82,10 @@ def test_labelled_env_passes_the_spec_check_and_carries_the_experts_labels(rollo
     core = env.core
     outliers = 0
     for element, problem in enumerate(core.problems):
-        edge_ids, edge_mask = core.tensors["edge_ids"][element], core.tensors["edge_mask"][element]
+        edge_ids, edge_mask = core.state.edge_ids[element], core.state.edge_mask[element]
         expected = np.zeros(edge_ids.shape, bool)
         expected[edge_mask.numpy()] = problem.outlier_mask[edge_ids[edge_mask].numpy()]
-        assert np.array_equal(core.tensors["outlier"][element].numpy(), expected)
+        assert np.array_equal(core.state.outlier[element].numpy(), expected)
         outliers += int(problem.outlier_mask.sum())
     assert outliers > 0
     # the labels of the current state are the expert's
