@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from envs.tasks import Task
 
 
 @dataclass(frozen=True)
@@ -363,6 +366,28 @@ class TrainConfig:
             ppo=_build(PPOConfig, data.get("ppo", {})),
             algorithm_name=data.get("algorithm_name", "ga-sac"),
         )
+
+
+def with_task(config: TrainConfig, task: Task) -> TrainConfig:
+    """``config`` training on the benchmark ``task`` (envs.tasks): its modes, its reward and
+    terminal bonus (reward None: the localisation reward of the synthetic problems), its robots,
+    noise level, map size and training outliers; the networks and budgets stay ``config``'s."""
+    return dataclasses.replace(
+        config,
+        task=TaskConfig(**task.core_options()),
+        algorithm=dataclasses.replace(
+            config.algorithm,
+            reward=task.reward or "localisation",
+            terminal_bonus=task.terminal_bonus,
+        ),
+        experiment=dataclasses.replace(
+            config.experiment,
+            robots=task.robots,
+            noise=task.noise,
+            poses_per_robot=task.poses_per_robot,
+            outlier_rate_max=task.outlier_rate_max,
+        ),
+    )
 
 
 def with_overrides(config: TrainConfig, settings: list[str]) -> TrainConfig:

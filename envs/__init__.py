@@ -35,13 +35,14 @@ from popbench.distributed import DistributedProblem
 
 if TYPE_CHECKING:
     from envs.pettingzoo_env import PGOParallelEnv
+    from envs.tasks import Task
     from envs.torchrl_env import PGOEnv
 
 PROBE_PROBLEMS = 32
 PROBE_SEED = 2**31 - 1  # probe seeds PROBE_SEED + k: apart from the training streams
 PADDING_MARGIN = 1.25
 
-__all__ = ["make_problem_source", "make_pettingzoo_env", "make_torchrl_env"]
+__all__ = ["make_problem_source", "make_pettingzoo_env", "make_torchrl_env", "task_options"]
 
 
 def make_problem_source(
@@ -173,23 +174,43 @@ def _split_options(options: dict[str, Any]) -> tuple[dict[str, Any], dict[str, A
     return source, env
 
 
+def task_options(
+    task: str | Task | None, robots: int | None, noise: str | None, options: dict[str, Any]
+) -> tuple[int, str, dict[str, Any]]:
+    """``(robots, noise, options)`` of a benchmark ``task`` (a name of
+    :data:`envs.tasks.TASKS` or a :class:`~envs.tasks.Task`; None: the paper's game) with the
+    keywords given (not None) overriding the task's."""
+    from envs.tasks import PAPER, get_task
+
+    record = get_task(task) if isinstance(task, str) else task or PAPER
+    given = {"robots": robots, "noise": noise}
+    merged = {**record.env_options(), **{k: v for k, v in given.items() if v is not None}}
+    merged.update(options)
+    return merged.pop("robots"), merged.pop("noise"), merged
+
+
 def make_torchrl_env(
-    robots: int = 7,
+    robots: int | None = None,
     batch_size: int = 32,
-    noise: str = "V2",
+    noise: str | None = None,
     seed: int = 0,
     device: str = "cpu",
+    task: str | Task | None = None,
     **options: Any,
 ) -> PGOEnv:
     """A batched TorchRL :class:`~envs.torchrl_env.PGOEnv` (``B = batch_size`` problems).
 
-    Options: those of :func:`make_problem_source` (``dataset``, ``poses_per_robot``,
-    ``loop_ratio``, ``partition``, ``start``, ``max_*``) and of ``PGOEnv`` (``delta_max``,
-    ``reward``, ``invalid_edge``, ``dtype``). ``reward`` defaults to ``"localisation"`` when the
-    problems have ground truth, else ``"F"``.
+    ``task``: a benchmark task (a name of :data:`envs.tasks.TASKS`, e.g. ``"actors"``, or a
+    :class:`~envs.tasks.Task`; default the paper's game, ``"paper"``): its robots, noise,
+    generator and modes are the defaults that the keywords given here override. Options: those
+    of :func:`make_problem_source` (``dataset``, ``poses_per_robot``, ``loop_ratio``,
+    ``partition``, ``start``, ``max_*``) and of ``PGOEnv`` (``delta_max``, ``reward``,
+    ``invalid_edge``, ``dtype``, the modes). ``reward`` defaults to the task's, else to
+    ``"localisation"`` when the problems have ground truth, else ``"F"``.
     """
     from envs.torchrl_env import PGOEnv
 
+    robots, noise, options = task_options(task, robots, noise, options)
     source_options, env_options = _split_options(options)
     source, dims, has_truth = make_problem_source(robots, noise, **source_options)
     env_options.setdefault("reward", "localisation" if has_truth else "F")
@@ -197,12 +218,17 @@ def make_torchrl_env(
 
 
 def make_pettingzoo_env(
-    robots: int = 7, noise: str = "V2", seed: int = 0, **options: Any
+    robots: int | None = None,
+    noise: str | None = None,
+    seed: int = 0,
+    task: str | Task | None = None,
+    **options: Any,
 ) -> PGOParallelEnv:
-    """A PettingZoo :class:`~envs.pettingzoo_env.PGOParallelEnv` (same options as
+    """A PettingZoo :class:`~envs.pettingzoo_env.PGOParallelEnv` (same options and ``task`` as
     :func:`make_torchrl_env`, without ``batch_size``/``device``/``dtype``)."""
     from envs.pettingzoo_env import PGOParallelEnv
 
+    robots, noise, options = task_options(task, robots, noise, options)
     source_options, env_options = _split_options(options)
     source, dims, has_truth = make_problem_source(robots, noise, **source_options)
     env_options.setdefault("reward", "localisation" if has_truth else "F")

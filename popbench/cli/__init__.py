@@ -2,8 +2,8 @@
 
 * :mod:`popbench.cli.datasets` — ``popbench datasets list | fetch | verify``
 * :mod:`popbench.cli.solve` — ``popbench solve``
-* :mod:`popbench.cli.train` — ``popbench train``, ``popbench train-gate`` (``agents`` loaded
-  lazily, by name)
+* :mod:`popbench.cli.train` — ``popbench train``, ``popbench train-gate``, ``popbench tasks``
+  (``agents`` and ``envs`` loaded lazily, by name)
 * :mod:`popbench.cli.run` — ``popbench run table1 | outliers | scalability | heldout``
 * :mod:`popbench.cli.plot` — ``popbench plot trajectories | curves``
 * :mod:`popbench.cli.options` — the shared options and value parsers
@@ -44,6 +44,7 @@ app.add_typer(datasets.app, name="datasets")
 app.command("solve", epilog=solve.EPILOG)(solve.solve_command)
 app.command("train", epilog=train.EPILOG)(train.train_command)
 app.command("train-gate", epilog=train.GATE_EPILOG)(train.train_gate_command)
+app.command("tasks", epilog=train.TASKS_EPILOG)(train.tasks_command)
 app.add_typer(run.app, name="run")
 app.add_typer(plot.app, name="plot")
 

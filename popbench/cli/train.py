@@ -24,6 +24,8 @@ TRAINING = {
     "algorithms": "agents.config:ALGORITHMS",  # the names of --algorithm
     "gate_config": "agents.config:OutlierGateConfig",
     "fit_gate": "agents.gate_training:fit_checkpoint",  # (path, out, config) -> summary str
+    "tasks": "envs.tasks:TASKS",  # dict[str, envs.tasks.Task], the benchmark tasks
+    "with_task": "agents.config:with_task",  # (TrainConfig, Task) -> config on the task
 }
 
 
@@ -32,8 +34,8 @@ TRAIN_DEVICES = ("cpu", "cuda")
 
 
 def train_config(
-    env: str,
-    robots: int,
+    env: str | None,
+    robots: int | None,
     seed: int,
     frames: int | None,
     device: str,
@@ -44,9 +46,11 @@ def train_config(
     settings: list[str] | None = None,
     algorithm: str | None = None,
     imitation_episodes: int | None = None,
+    task: str | None = None,
 ):
-    """The `TrainConfig` of ``popbench train``: ``preset`` with the command's values applied
-    (``algorithm`` and ``imitation_episodes``: None keeps the preset's)."""
+    """The `TrainConfig` of ``popbench train``: ``preset``, on the benchmark ``task`` when given,
+    with the command's values applied (``env``, ``robots``, ``algorithm``,
+    ``imitation_episodes``: None keeps the task's or the preset's)."""
     import dataclasses
 
     from popbench.methods import load_object
@@ -54,9 +58,12 @@ def train_config(
     presets = load_object(TRAINING["presets"])  # agents.config.PRESETS
     algorithms = load_object(TRAINING["algorithms"])
 
-    if env not in TRAIN_ENVS:
+    tasks = load_object(TRAINING["tasks"])  # envs.tasks.TASKS
+    if task is not None and task not in tasks:
+        raise ValueRangeError("--task", task, " or ".join(tasks))
+    if env is not None and env not in TRAIN_ENVS:
         raise ValueRangeError("--env", env, " or ".join(TRAIN_ENVS))
-    if robots < 1:
+    if robots is not None and robots < 1:
         raise ValueRangeError("--robots", robots, "an integer ≥ 1")
     if frames is not None and frames < 1:
         raise ValueRangeError("--frames", frames, "an integer ≥ 1")
@@ -77,10 +84,15 @@ def train_config(
             raise ValueRangeError("--device", device, "cpu (no CUDA device is available)")
     if imitation_episodes is not None:  # a shorthand of --set imitation.episodes=N
         settings = [*(settings or []), f"imitation.episodes={imitation_episodes}"]
-    config = load_object(TRAINING["overrides"])(presets[preset], settings or [])
+    config = presets[preset]
+    if task is not None:
+        config = load_object(TRAINING["with_task"])(config, tasks[task])
+    config = load_object(TRAINING["overrides"])(config, settings or [])
     if algorithm is not None:
         config = dataclasses.replace(config, algorithm_name=algorithm)
     name = config.algorithm_name
+    env = env or config.experiment.noise
+    robots = config.experiment.robots if robots is None else robots
     experiment = dataclasses.replace(
         config.experiment,
         noise=env,
@@ -102,14 +114,28 @@ EPILOG = (
     "  popbench train --preset cpu-residual --init-actor "
     "agents/checkpoints/imitation-V2-n7-residual.pt --out runs/ft\n\n"
     "  popbench train --algorithm mappo --preset cpu-mappo --imitation-episodes 0 --out runs/m\n\n"
+    "  popbench train --preset cpu-residual --task noisy --imitation-episodes 0 --out runs/v3\n\n"
     "Writes checkpoint.pt, metrics.csv and learning_curve.png into --out; a rerun with the "
     "same --out resumes from checkpoint.pt unless --no-resume."
 )
 
 
 def train_command(
-    env: Annotated[str, typer.Option(help="Training noise setting: V1, V2 or V3.")] = "V2",
-    robots: Annotated[int, typer.Option(help="Team size n (the critic is built for n).")] = 7,
+    env: Annotated[
+        str | None,
+        typer.Option(help="Training noise setting: V1, V2 or V3 (default: the task's, or V2)."),
+    ] = None,
+    robots: Annotated[
+        int | None,
+        typer.Option(help="Team size n, the critic is built for n (default: the task's, or 7)."),
+    ] = None,
+    task: Annotated[
+        str | None,
+        typer.Option(
+            help="Train on a benchmark task (`popbench tasks` lists them): its environment "
+            "modes, reward, problems and outliers replace the preset's (default: the preset's)."
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Seed of the environments, torch and replay.")] = 0,
     frames: Annotated[
         int | None, typer.Option(help="Total environment frames (default: the preset's).")
@@ -182,6 +208,7 @@ def train_command(
         settings=settings,
         algorithm=algorithm,
         imitation_episodes=imitation_episodes,
+        task=task,
     )
     with limited_threads(threads):
         try:
@@ -233,3 +260,31 @@ def train_gate_command(
     fit = load_object(TRAINING["fit_gate"])  # agents.gate_training.fit_checkpoint
     with limited_threads(threads):
         typer.echo(fit(checkpoint, out or checkpoint, config))
+
+
+TASKS_EPILOG = (
+    "Examples:\n\n"
+    "  popbench tasks\n\n"
+    "  popbench train --task actors --preset cpu-residual\n\n"
+    "In Python: envs.make_torchrl_env(task=NAME), envs.make_pettingzoo_env(task=NAME) "
+    "(docs/environment.md, 'Benchmark tasks')."
+)
+
+
+def tasks_command() -> None:
+    """List the benchmark tasks: their problems, environment modes and evaluation."""
+    import textwrap
+
+    from popbench.methods import load_object
+
+    for name, task in load_object(TRAINING["tasks"]).items():  # envs.tasks.TASKS
+        problems = f"n={task.robots} {task.noise}, {task.poses_per_robot} poses/robot"
+        if task.outlier_rate_max:
+            problems += f", outliers U(0, {task.outlier_rate_max:g})"
+        bonus = " + terminal bonus" if task.terminal_bonus else ""
+        modes = f"{', '.join(task.core_options().values())}; reward {task.reward or 'localisation'}"
+        heldout = f"held-out: {task.eval_problems} problems"
+        if task.eval_outlier_rate:
+            heldout += f", outlier rate {task.eval_outlier_rate:g}"
+        typer.echo(f"{name}\n  {problems}\n  {modes}{bonus}\n  {heldout}")
+        typer.echo(textwrap.fill(task.summary, 88, initial_indent="  ", subsequent_indent="  "))
