@@ -191,14 +191,15 @@ def task_options(
 
 def make_torchrl_env(
     robots: int | None = None,
-    batch_size: int = 32,
+    batch_size: int | tuple[()] = 32,
     noise: str | None = None,
     seed: int = 0,
     device: str = "cpu",
     task: str | Task | None = None,
     **options: Any,
 ) -> PGOEnv:
-    """A batched TorchRL :class:`~envs.torchrl_env.PGOEnv` (``B = batch_size`` problems).
+    """A batched TorchRL :class:`~envs.torchrl_env.PGOEnv` (``B = batch_size`` problems;
+    ``batch_size=()``: one problem, unbatched).
 
     ``task``: a benchmark task (a name of :data:`envs.tasks.TASKS`, e.g. ``"actors"``, or a
     :class:`~envs.tasks.Task`; default the paper's game, ``"paper"``): its robots, noise,
@@ -225,7 +226,8 @@ def make_pettingzoo_env(
     **options: Any,
 ) -> PGOParallelEnv:
     """A PettingZoo :class:`~envs.pettingzoo_env.PGOParallelEnv` (same options and ``task`` as
-    :func:`make_torchrl_env`, without ``batch_size``/``device``/``dtype``)."""
+    :func:`make_torchrl_env`, without ``batch_size``/``device``/``dtype``; also ``action_mask``
+    and ``render_mode``)."""
     from envs.pettingzoo_env import PGOParallelEnv
 
     robots, noise, options = task_options(task, robots, noise, options)

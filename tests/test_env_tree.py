@@ -297,7 +297,8 @@ def test_conformance_in_every_mode(modes: dict) -> None:
     check_env_specs(env)
     td = env.rollout(40, break_when_any_done=False)
     assert torch.isfinite(td["next", "agents", "reward"]).all()
-    parallel_api_test(make_pettingzoo_env(seed=0, **SMALL, **modes), num_cycles=100)
+    pettingzoo_env = make_pettingzoo_env(seed=0, invalid_edge="repair", **SMALL, **modes)
+    parallel_api_test(pettingzoo_env, num_cycles=100)  # it samples without a mask: repaired
 
 
 @pytest.mark.parametrize("correction", ["subtree", "pose"])

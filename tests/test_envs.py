@@ -282,14 +282,18 @@ def test_parallel_api_and_torchrl_wrapper() -> None:
     from pettingzoo.test import parallel_api_test
     from torchrl.envs import PettingZooWrapper
 
-    env = make_pettingzoo_env(seed=0, **SMALL)
+    # PettingZoo's parallel test samples the Dict action without a mask: the repair option
+    env = make_pettingzoo_env(seed=0, invalid_edge="repair", **SMALL)
     parallel_api_test(env, num_cycles=200)
     observations, infos = env.reset(seed=1)
     assert sorted(observations) == ["agent_0", "agent_1", "agent_2"]
     assert env.observation_space("agent_0").contains(observations["agent_0"])
-    assert infos["agent_0"]["edge_action_mask"].shape == (env.dims.edges + 1,)
+    assert infos["agent_0"]["action_mask"]["edge"].shape == (env.dims.edges + 1,)
 
-    wrapped = PettingZooWrapper(env=make_pettingzoo_env(seed=0, **SMALL))
+    # the wrapper reads an action_mask only for a Discrete action (docs/environment.md)
+    wrapped = PettingZooWrapper(
+        env=make_pettingzoo_env(seed=0, invalid_edge="repair", action_mask=False, **SMALL)
+    )
     td = wrapped.rollout(500)
     horizon = wrapped._env.core.state.num_edges.max().item()
     assert td.shape == (horizon,)
