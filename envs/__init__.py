@@ -14,8 +14,9 @@ supervised gate loss reads them). The default 0 draws clean problems.
 
 Padding maxima (``max_vertices``, ``max_edges``, ``max_degree``) default to: for a dataset, its
 exact local-graph maxima; for the synthetic generator, the maxima over :data:`PROBE_PROBLEMS`
-problems drawn with fixed seeds (independent of ``seed``, so envs with different seeds share their
-specs), times :data:`PADDING_MARGIN`, rounded up to a multiple of 8. A later problem that does not
+(:data:`SLAM_PROBE_PROBLEMS` for the ``"SLAM"`` maps) problems drawn with fixed seeds
+(independent of ``seed``, so envs with different seeds share their specs), times
+:data:`PADDING_MARGIN`, rounded up to a multiple of 8. A later problem that does not
 fit raises a one-line :class:`popbench.errors.ValueRangeError` naming the option to raise.
 
 torchrl and pettingzoo are imported only when an env is made. On a small shared CPU, prefer
@@ -41,6 +42,10 @@ if TYPE_CHECKING:
 PROBE_PROBLEMS = 32
 PROBE_SEED = 2**31 - 1  # probe seeds PROBE_SEED + k: apart from the training streams
 PADDING_MARGIN = 1.25
+# The "SLAM" maps (popbench.slam_maps) draw their loop density and size per map, so their local
+# graphs vary more: at 40 poses per robot the largest local edge count over 600 maps was 180,
+# over the 32 probes 128 (2026-12-04); 512 probes cover that tail.
+SLAM_PROBE_PROBLEMS = 512
 
 __all__ = ["make_problem_source", "make_pettingzoo_env", "make_torchrl_env", "task_options"]
 
@@ -80,7 +85,8 @@ def make_problem_source(
         source = _Synthetic(
             robots, noise, poses_per_robot, loop_ratio, outlier_rate_max, start_noise
         )
-        probes = [source(PROBE_SEED + k) for k in range(PROBE_PROBLEMS)]
+        count = SLAM_PROBE_PROBLEMS if noise == "SLAM" else PROBE_PROBLEMS
+        probes = [source(PROBE_SEED + k) for k in range(count)]
         dims = Dimensions.of(probes, PADDING_MARGIN, multiple=8)
         has_truth = True
     else:

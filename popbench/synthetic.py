@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from popbench import se2
+from popbench import se2, slam_maps
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph, odometry_composition, robot_kinds
@@ -112,7 +112,9 @@ def make_problem(
 
     Args:
         robots: number of robots ``R ≥ 1``.
-        noise: ``"V1"``, ``"V2"`` or ``"V3"`` (:data:`NOISE_LEVELS`).
+        noise: ``"V1"``, ``"V2"`` or ``"V3"`` (:data:`NOISE_LEVELS`), or ``"SLAM"``: a
+            single-trajectory map of :mod:`popbench.slam_maps` with ``poses_per_robot`` drawn
+            in ``[P, 2P]`` (``loop_ratio`` and ``loop_radius`` unused there).
         poses_per_robot: ``P ≥ 2`` poses per robot.
         loop_ratio: loop closures per pose; ``round(loop_ratio · R · P)`` are sampled.
         seed: seed of ``np.random.default_rng``; equal arguments give identical problems.
@@ -126,6 +128,8 @@ def make_problem(
     Raises:
         ValueRangeError: an argument outside its range.
     """
+    if noise == slam_maps.LEVEL:
+        return slam_maps.make_problem(robots, slam_maps.level_sizes(poses_per_robot), seed)
     if isinstance(robots, bool) or not isinstance(robots, int | np.integer) or robots < 1:
         raise ValueRangeError("robots", robots, "an integer ≥ 1")
     if not isinstance(poses_per_robot, int | np.integer) or poses_per_robot < 2:

@@ -255,7 +255,7 @@ def scalability_command(
     wrote(len(run_scalability(config, run)), "cells", config.out, files)
 
 
-HELDOUT_NOISE = ("V1", "V2", "V3")  # popbench.synthetic.NOISE_LEVELS
+HELDOUT_NOISE = ("V1", "V2", "V3", "SLAM")  # popbench.synthetic.make_problem
 
 
 def keyword_options(text: str, option: str) -> dict[str, Any]:
@@ -294,7 +294,9 @@ def keyword_options(text: str, option: str) -> dict[str, Any]:
 )
 def heldout_command(
     *,
-    noise: str = typer.Option("V2", help="Synthetic noise levels: V1, V2, V3 (comma list)."),
+    noise: str = typer.Option(
+        "V2", help="Synthetic noise levels: V1, V2, V3, SLAM (single-trajectory maps; comma list)."
+    ),
     robots: options.TeamSizes = "7",
     problems: int = typer.Option(
         100, min=1, help="Held-out problems per (noise, team size); seeds 2^32 + k."

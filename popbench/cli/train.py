@@ -29,7 +29,7 @@ TRAINING = {
 }
 
 
-TRAIN_ENVS = ("V1", "V2", "V3")
+TRAIN_ENVS = ("V1", "V2", "V3", "SLAM")
 TRAIN_DEVICES = ("cpu", "cuda")
 
 
@@ -123,7 +123,10 @@ EPILOG = (
 def train_command(
     env: Annotated[
         str | None,
-        typer.Option(help="Training noise setting: V1, V2 or V3 (default: the task's, or V2)."),
+        typer.Option(
+            help="Training problems: V1, V2, V3 (synthetic teams) or SLAM (single-trajectory "
+            "maps, popbench.slam_maps; default: the task's, or V2)."
+        ),
     ] = None,
     robots: Annotated[
         int | None,
