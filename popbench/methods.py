@@ -244,6 +244,22 @@ METHODS: dict[str, MethodRecord] = {
             refines="prop-v1",
         ),
         MethodRecord("local-lm", "popbench.solvers.local_lm:solve", "local-lm"),
+        # mm-pgo started from a one-pass estimate (popbench.warm_start; Table I at n = 7)
+        MethodRecord(
+            "prop-v1+mm-pgo",
+            "popbench.warm_start:solve_prop_v1_mm_pgo",
+            "Prop-V1+MM-PGO",
+            checkpoint=ACTOR_CHECKPOINT,
+            seed_checkpoints=ACTOR_SEED_CHECKPOINTS,
+            learned=True,
+            refines="prop-v1",
+        ),
+        MethodRecord(
+            "local-lm+mm-pgo",
+            "popbench.warm_start:solve_local_lm_mm_pgo",
+            "local-lm+MM-PGO",
+            refines="local-lm",
+        ),
     )
 }
 

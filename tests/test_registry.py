@@ -143,6 +143,8 @@ def test_the_registered_records_say_what_table_i_and_table_ii_read() -> None:
         "prop-v1",
         "prop-v2",
         "local-lm",
+        "prop-v1+mm-pgo",
+        "local-lm+mm-pgo",
     )
     gnc, local = methods.method_record("gnc"), methods.method_record("local-lm")
     assert gnc.centralised and gnc.has_inlier_mask and gnc.label == "GNC"

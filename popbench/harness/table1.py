@@ -31,6 +31,9 @@ from popbench.methods import METHODS, Budget, Result, distributed_methods
 
 DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
 ROBOTS = (3, 7, 35)
+# Methods computed at some team sizes only: the warm-started mm-pgo rows (popbench.warm_start)
+# at n = 7, which keeps a fresh `make run` within its 10 minutes (docs/harness.md).
+METHOD_ROBOTS: dict[str, tuple[int, ...]] = {"prop-v1+mm-pgo": (7,), "local-lm+mm-pgo": (7,)}
 QUICK = {
     "datasets": ("mit",),
     "robots": (3,),
@@ -54,6 +57,10 @@ class Table1Config:
     init: str = "odometry"
     partition: str = "metis"
     out: Path = Path("results/table1")
+    # the team sizes a method is restricted to (the others: every size of `robots`)
+    method_robots: dict[str, tuple[int, ...]] = dataclasses.field(
+        default_factory=lambda: dict(METHOD_ROBOTS)
+    )
 
     @classmethod
     def quick(cls, **overrides: Any) -> Table1Config:
@@ -72,7 +79,9 @@ def cell_specs(config: Table1Config) -> list[Spec]:
         "seed": config.seeds,
     }
     shared = {"iterations": config.iterations, "init": config.init, "partition": config.partition}
-    return grid_specs("table1", axes, shared, config.training_seeds)
+    specs = grid_specs("table1", axes, shared, config.training_seeds)
+    sizes = config.method_robots
+    return [spec for spec in specs if spec["robots"] in sizes.get(spec["method"], config.robots)]
 
 
 def check_training_seeds(config: Table1Config) -> None:
