@@ -32,7 +32,14 @@ import torch
 
 from agents.checkpoint import checkpoint_algorithm
 from agents.config import TRAJECTORY_TASK
-from agents.methods import CHECKPOINT_DIR, Episode, cached_actor, flag_gate, run_episode
+from agents.methods import (
+    CHECKPOINT_DIR,
+    DEFAULT_CHECKPOINT,
+    Episode,
+    cached_actor,
+    flag_gate,
+    run_episode,
+)
 from agents.outlier_gate import candidate_auc
 from popbench import objective
 from popbench.datasets import file_sha256
@@ -42,9 +49,10 @@ from popbench.reconcile import reconcile
 from popbench.solvers.local_lm import local_optima
 from popbench.synthetic import make_problem
 
-IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7-robust.pt"
-# The GA-SAC fine-tuned actor of the run whose imitation phase is IMITATION_CHECKPOINT.
-GA_SAC_CHECKPOINT = CHECKPOINT_DIR / "actor-V2-n7-robust.pt"
+# The cpu-residual recipe's two phases, seed 0: its imitation actor and its GA-SAC actor
+# (prop-v1's default, DEFAULT_CHECKPOINT).
+IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7-residual.pt"
+GA_SAC_CHECKPOINT = DEFAULT_CHECKPOINT
 # The environment of the non-learned policy rows: the trajectory task without the base step
 # (each row's Δ is its own).
 POLICY_TASK = dataclasses.replace(TRAJECTORY_TASK, base="none")

@@ -189,12 +189,12 @@ def package_folder(name: str) -> Path | None:
     return Path(next(iter(found.submodule_search_locations)))
 
 
-# The n = 7 V2 actor (any n): the imitation phase of the cpu-imitation-robust run, seed 0 (its
-# GA-SAC fine-tuning measured worse on held-out problems: agents/checkpoints/README.md), and the
-# same phase of training seeds 1 and 2.
-ACTOR_CHECKPOINT = "agents:checkpoints/imitation-V2-n7-robust.pt"
+# The n = 7 V2 actor (any n): the cpu-residual recipe's (imitation, then GA-SAC with the KL
+# anchor), seed 0, chosen on the held-out protocol (docs/training.md, "The default actor"), and
+# the same recipe's training seeds 1 and 2.
+ACTOR_CHECKPOINT = "agents:checkpoints/actor-V2-n7-residual.pt"
 ACTOR_SEED_CHECKPOINTS = tuple(
-    f"agents:checkpoints/imitation-V2-n7-robust-s{seed}.pt" for seed in (1, 2)
+    f"agents:checkpoints/actor-V2-n7-residual-s{seed}.pt" for seed in (1, 2)
 )
 
 METHODS: dict[str, MethodRecord] = {

@@ -315,14 +315,14 @@ def heldout_command(
     checkpoint: Path = typer.Option(
         None,
         help="The ga-sac row's actor, any training checkpoint or snapshot; the row is shown "
-        "under the algorithm that trained it (ga-sac, mappo, ippo; default: the committed "
-        "GA-SAC fine-tuned actor-V2-n7-robust.pt, agents/checkpoints/README.md).",
+        "under the algorithm that trained it (ga-sac, mappo, ippo; default: prop-v1's, the "
+        "cpu-residual recipe's GA-SAC actor actor-V2-n7-residual.pt, agents/checkpoints/README.md).",
         show_default=False,
     ),
     imitation_checkpoint: Path = typer.Option(
         None,
-        help="The actor of the imitation and learned-order rows (default: the committed "
-        "imitation-V2-n7-robust.pt).",
+        help="The actor of the imitation and learned-order rows (default: the imitation phase "
+        "of the ga-sac row's recipe, imitation-V2-n7-residual.pt).",
         show_default=False,
     ),
     consensus: str | None = typer.Option(
