@@ -316,7 +316,7 @@ def heldout_command(
         None,
         help="The ga-sac row's actor, any training checkpoint or snapshot; the row is shown "
         "under the algorithm that trained it (ga-sac, mappo, ippo; default: prop-v1's, the "
-        "cpu-residual recipe's GA-SAC actor actor-V2-n7-residual.pt, agents/checkpoints/README.md).",
+        "cpu-residual recipe's GA-SAC actor actor-V2-n7-residual.pt; agents/checkpoints).",
         show_default=False,
     ),
     imitation_checkpoint: Path = typer.Option(
