@@ -32,7 +32,8 @@ class Task:
         reward: ``"localisation"`` (ground truth), ``"F"`` (the local objective), or None:
             ``"localisation"`` where the problems have ground truth, else ``"F"``.
         terminal_bonus: the terminal log-ratio bonus on the episode's last step.
-        robots: agents ``n`` per problem; noise: ``"V1"``/``"V2"``/``"V3"``.
+        robots: agents ``n`` per problem; noise: ``"V1"``/``"V2"``/``"V3"``, or ``"SLAM"``
+            (SLAM-shaped maps, :mod:`popbench.slam_maps`).
         poses_per_robot: the synthetic generator's map size.
         outlier_rate_max: training problems get outliers at a rate ``U(0, outlier_rate_max)``.
         eval_problems: held-out problems of the evaluation protocol.
@@ -131,6 +132,14 @@ TASKS: dict[str, Task] = {
             "loop closures corrupted in every held-out problem",
             outlier_rate_max=0.2,
             eval_outlier_rate=0.1,
+        ),
+        dataclasses.replace(
+            ACTORS,
+            name="slam-maps",
+            summary="the actors' task on single-trajectory SLAM-shaped maps cut by METIS "
+            "(popbench.slam_maps; 40-80 poses per robot)",
+            noise="SLAM",
+            poses_per_robot=40,
         ),
     )
 }
