@@ -1,7 +1,7 @@
 """CC-PGO and ML-PGO (RBCD on the rank-5 relaxation) against the published optima and GTSAM.
 
 Prints, for each dataset × number of robots × method, after ``--iterations`` rounds (one round =
-one colour class of non-adjacent robots updating in parallel, see ``baselines/rbcd.py``):
+one colour class of non-adjacent robots updating in parallel, see ``baselines/rbcd/``):
 F_chordal of the rounded estimate, its gap to the published certified optimum (REFERENCES §6.2),
 the first round whose relaxed cost (2f) was within 1e-3 of it, wall_s and parallel_s. Then:
 
@@ -46,7 +46,7 @@ from reference import (  # noqa: E402
 )
 from scipy.sparse import _sparsetools  # noqa: E402
 
-from baselines import rbcd  # noqa: E402
+from baselines.rbcd import blocks  # noqa: E402
 from popbench.methods import Budget, Result, get_method  # noqa: E402
 
 METHODS = ("cc-pgo", "ml-pgo")
@@ -65,7 +65,7 @@ def sparse_kernel_clock() -> Iterator[list[float]]:
     RBCD's Cholesky preconditioner solves, while the block runs. Each call is timed whole; the
     clock adds two ``perf_counter`` reads per call (≈ 0.1 µs against ≥ 10 µs per kernel)."""
     total = [0.0]
-    matvecs, solve = _sparsetools.csr_matvecs, rbcd.CholeskyPreconditioner.solve
+    matvecs, solve = _sparsetools.csr_matvecs, blocks.CholeskyPreconditioner.solve
 
     def timed(kernel):
         def call(*args):
@@ -77,11 +77,11 @@ def sparse_kernel_clock() -> Iterator[list[float]]:
         return call
 
     _sparsetools.csr_matvecs = timed(matvecs)
-    rbcd.CholeskyPreconditioner.solve = timed(solve)
+    blocks.CholeskyPreconditioner.solve = timed(solve)
     try:
         yield total
     finally:
-        _sparsetools.csr_matvecs, rbcd.CholeskyPreconditioner.solve = matvecs, solve
+        _sparsetools.csr_matvecs, blocks.CholeskyPreconditioner.solve = matvecs, solve
 
 
 def run(name: str, robots: int, method: str, iterations: int, init: str) -> Result:

@@ -11,17 +11,13 @@ import dataclasses
 import time
 
 import numpy as np
-import pymetis
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from popbench.distributed import DistributedProblem
 from popbench.graph import PoseGraph
 from popbench.objective import weights
 from popbench.partition import adjacency
-
-_SPD_OPTIONS = {"diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
-
+from popbench.sparse import nested_dissection, spd_lu
 
 # ----- the team: every robot's local graph in one disjoint graph -----------------------------
 
@@ -118,9 +114,7 @@ def _vertex_order(team: _Team) -> np.ndarray:
         order = np.arange(last - first)
         if order.size > 2:
             starts, neighbours = adjacency(local)
-            order, _ = pymetis.nested_dissection(
-                adjacency=pymetis.CSRAdjacency(adj_starts=starts, adjacent=neighbours)
-            )
+            order, _ = nested_dissection(starts, neighbours)
         order = np.asarray(order, dtype=np.int64) + first
         order = order[order != team.fixed_row]
         position[order] = placed + np.arange(order.size)
@@ -233,6 +227,6 @@ def _solve_blocks(
             ),
             shape=(last - first,) * 2,
         )
-        x[first:last] = splu(block, permc_spec="NATURAL", **_SPD_OPTIONS).solve(rhs[first:last])
+        x[first:last] = spd_lu(block).solve(rhs[first:last])
         seconds[robot] += time.perf_counter() - tic
     return x

@@ -8,7 +8,17 @@ import numpy as np
 import pytest
 from conftest import require_dataset
 
-from baselines import cc_pgo, ml_pgo, rbcd
+from baselines import cc_pgo, ml_pgo
+from baselines.rbcd import (
+    blocks,
+    driver,
+    local_solver,
+    relaxation,
+    stiefel,
+)
+from baselines.rbcd import (
+    rounding as rbcd_rounding,
+)
 from popbench import objective, se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
@@ -20,50 +30,56 @@ MIT_OPTIMUM = 61.1541  # F_chordal*, SE-Sync convention (REFERENCES §6.2)
 
 
 def _random_point(rng: np.random.Generator, num_poses: int, rank: int) -> np.ndarray:
-    return rbcd.project_manifold(rng.normal(size=(num_poses, 3, rank)))
+    return stiefel.project_manifold(rng.normal(size=(num_poses, 3, rank)))
 
 
 def _cost(q, x: np.ndarray) -> float:
-    return rbcd.relaxed_cost(x, rbcd.apply_q(q, x))
+    return relaxation.relaxed_cost(x, relaxation.apply_q(q, x))
 
 
 def test_twice_relaxed_cost_is_the_chordal_objective_at_rank_two(small_graph, rng):
-    q = rbcd.connection_laplacian(small_graph)
+    q = relaxation.connection_laplacian(small_graph)
     for poses in (small_graph.poses, small_graph.ground_truth, rng.normal(size=(30, 3))):
         expected = objective.chordal_objective(small_graph, poses)
-        assert 2 * _cost(q, rbcd.lift(poses, np.eye(2))) == pytest.approx(expected, rel=1e-12)
-        lifted = rbcd.lift(poses, rbcd.random_stiefel(5, seed=3))  # rank 5: the same cost
+        assert 2 * _cost(q, relaxation.lift(poses, np.eye(2))) == pytest.approx(expected, rel=1e-12)
+        lifted = relaxation.lift(
+            poses, relaxation.random_stiefel(5, seed=3)
+        )  # rank 5: the same cost
         assert 2 * _cost(q, lifted) == pytest.approx(expected, rel=1e-12)
 
 
 def test_riemannian_gradient_and_hessian_match_finite_differences(small_graph, rng):
-    q = rbcd.connection_laplacian(small_graph)
+    q = relaxation.connection_laplacian(small_graph)
     x = _random_point(rng, small_graph.num_poses, 4)
-    euclidean = rbcd.apply_q(q, x)
-    gradient = rbcd.riemannian_gradient(x, euclidean)
-    direction = rbcd.project_tangent(x, rng.normal(size=x.shape))
+    euclidean = relaxation.apply_q(q, x)
+    gradient = stiefel.riemannian_gradient(x, euclidean)
+    direction = stiefel.project_tangent(x, rng.normal(size=x.shape))
     step = 1e-5
 
     def along(t: float) -> float:
-        return _cost(q, rbcd.retract(x, t * direction))
+        return _cost(q, stiefel.retract(x, t * direction))
 
     slope = (along(step) - along(-step)) / (2 * step)
     assert slope == pytest.approx(np.vdot(gradient, direction), rel=1e-6)
     # the polar retraction is second order, so the curve's curvature is ⟨v, Hess f[v]⟩
-    hessian = rbcd.riemannian_hessian(q, x, rbcd.multipliers(x, euclidean), direction)
+    hessian = stiefel.riemannian_hessian(q, x, stiefel.multipliers(x, euclidean), direction)
     step = 1e-4
     curvature = (along(step) - 2 * along(0.0) + along(-step)) / step**2
     assert curvature == pytest.approx(np.vdot(direction, hessian), rel=1e-4)
     # the gradient is tangent: orthogonal to the normal directions Y S (S symmetric)
-    normal = rbcd._symmetric_times_rows(rng.normal(size=(x.shape[0], 3)), x[:, :2])
+    normal = stiefel._symmetric_times_rows(rng.normal(size=(x.shape[0], 3)), x[:, :2])
     assert np.vdot(gradient[:, :2], normal) == pytest.approx(0.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("rounding", rbcd.ROUNDINGS)
+@pytest.mark.parametrize("rounding", rbcd_rounding.ROUNDINGS)
 def test_rounding_a_lifted_embedding_returns_the_poses(small_graph, rounding):
     truth = small_graph.ground_truth
-    lifted = rbcd.lift(se2.compose(np.array([3.0, -1.0, 0.7]), truth), rbcd.random_stiefel(5, 1))
-    rounded = rbcd.round_solution(lifted, anchor=0, anchor_pose=truth[0], rounding=rounding)
+    lifted = relaxation.lift(
+        se2.compose(np.array([3.0, -1.0, 0.7]), truth), relaxation.random_stiefel(5, 1)
+    )
+    rounded = rbcd_rounding.round_solution(
+        lifted, anchor=0, anchor_pose=truth[0], rounding=rounding
+    )
     np.testing.assert_allclose(rounded[:, :2], truth[:, :2], atol=1e-10)
     np.testing.assert_allclose(se2.wrap(rounded[:, 2] - truth[:, 2]), 0.0, atol=1e-10)
 
@@ -72,19 +88,21 @@ def test_svd_rounding_fixes_the_reflection_and_ignores_orthogonal_changes_of_the
     small_graph, rng
 ):
     truth = small_graph.ground_truth
-    lifted = rbcd.lift(truth, rbcd.random_stiefel(5, 2))
-    reference = rbcd.round_solution(lifted, anchor=4, anchor_pose=truth[4])
+    lifted = relaxation.lift(truth, relaxation.random_stiefel(5, 2))
+    reference = rbcd_rounding.round_solution(lifted, anchor=4, anchor_pose=truth[4])
     flips = 0
     for _ in range(12):  # X -> X O, O in O(r) with det ±1: the same cost, the same rounding
         orthogonal, _ = np.linalg.qr(rng.normal(size=(5, 5)))
         turned = lifted @ orthogonal
-        basis = rbcd.rounding_basis(turned, anchor=4)
+        basis = rbcd_rounding.rounding_basis(turned, anchor=4)
         np.testing.assert_allclose(basis.T @ basis, np.eye(2), atol=1e-12)
         m = turned[:, :2] @ basis
         assert np.all(np.linalg.det(m) > 0)  # R_iᵀ, not reflections
-        _, vectors = np.linalg.eigh(rbcd.flat(turned[:, :2]).T @ rbcd.flat(turned[:, :2]))
+        _, vectors = np.linalg.eigh(
+            relaxation.flat(turned[:, :2]).T @ relaxation.flat(turned[:, :2])
+        )
         flips += np.linalg.det(turned[0, :2] @ vectors[:, [-1, -2]]) < 0  # needed the fix
-        rounded = rbcd.round_solution(turned, anchor=4, anchor_pose=truth[4])
+        rounded = rbcd_rounding.round_solution(turned, anchor=4, anchor_pose=truth[4])
         np.testing.assert_allclose(rounded[:, :2], reference[:, :2], atol=1e-9)
         np.testing.assert_allclose(se2.wrap(rounded[:, 2] - reference[:, 2]), 0.0, atol=1e-9)
     assert 0 < flips < 12  # both orientations of the eigenvector basis occurred
@@ -95,18 +113,20 @@ def test_svd_rounding_keeps_the_dominant_plane_of_an_unconverged_iterate(small_g
     looks like): the SVD basis is the poses' plane whatever the anchor; the anchor's own rows
     are tilted by the extra component, and its rounding is worse."""
     truth = small_graph.ground_truth
-    lift_rows = rbcd.random_stiefel(5, 3)
+    lift_rows = relaxation.random_stiefel(5, 3)
     extra = np.linalg.qr(np.column_stack([lift_rows.T, rng.normal(size=5)]))[0][:, 2]
-    lifted = rbcd.lift(truth, lift_rows)
+    lifted = relaxation.lift(truth, lift_rows)
     lifted[:, :2] += 0.3 * rng.normal(size=(truth.shape[0], 2, 1)) * extra
-    lifted = rbcd.project_manifold(lifted)
+    lifted = stiefel.project_manifold(lifted)
     costs = {}
-    for rounding in rbcd.ROUNDINGS:
-        rounded = rbcd.round_solution(lifted, anchor=0, anchor_pose=truth[0], rounding=rounding)
+    for rounding in rbcd_rounding.ROUNDINGS:
+        rounded = rbcd_rounding.round_solution(
+            lifted, anchor=0, anchor_pose=truth[0], rounding=rounding
+        )
         costs[rounding] = objective.chordal_objective(small_graph, rounded)
     assert costs["svd"] < costs["anchor"]
     with pytest.raises(ValueRangeError, match="rounding"):
-        rbcd.rounding_basis(lifted, 0, "nearest")
+        rbcd_rounding.rounding_basis(lifted, 0, "nearest")
 
 
 @pytest.mark.parametrize("method", [cc_pgo, ml_pgo])
@@ -114,7 +134,7 @@ def test_an_unknown_rounding_is_rejected_before_any_round(small_graph, method, m
     def no_rounds(*_args, **_kwargs):
         raise AssertionError("the rounds ran before the option was checked")
 
-    monkeypatch.setattr(rbcd, "run_rbcd", no_rounds)
+    monkeypatch.setattr(driver, "run_rbcd", no_rounds)
     problem = DistributedProblem(small_graph.replace(robots=np.repeat(np.arange(3), 10)))
     with pytest.raises(ValueRangeError, match="rounding"):
         method.solve(problem, Budget(iterations=5), rounding="nearest")
@@ -122,14 +142,14 @@ def test_an_unknown_rounding_is_rejected_before_any_round(small_graph, method, m
 
 def test_colour_classes_are_independent_sets_covering_every_robot(small_graph):
     robots = np.repeat(np.arange(6), 5)
-    classes = rbcd.colour_robots(small_graph, robots)
+    classes = blocks.colour_robots(small_graph, robots)
     assert sorted(np.concatenate(classes).tolist()) == list(range(6))
     a, b = robots[small_graph.tails], robots[small_graph.heads]
     for members in classes:
         inside = np.isin(a, members) & np.isin(b, members)
         assert np.all(a[inside] == b[inside])
     # robots of at least `batch_below` poses update alone, the smaller ones as one batch
-    groups = rbcd.batch_groups(np.array([0, 1, 2]), np.array([5, 500, 7]), batch_below=300)
+    groups = blocks.batch_groups(np.array([0, 1, 2]), np.array([5, 500, 7]), batch_below=300)
     assert [g.tolist() for g in groups] == [[1], [0, 2]]
 
 
@@ -195,21 +215,25 @@ def test_mit_three_robots_reaches_the_published_optimum(name):
 
 def test_batched_class_update_equals_each_robot_updating_alone(small_graph, rng):
     robots = np.repeat(np.arange(6), 5)
-    classes = rbcd.colour_robots(small_graph, robots)
+    classes = blocks.colour_robots(small_graph, robots)
     members = next(c for c in classes if c.size >= 2)
-    q = rbcd.connection_laplacian(small_graph)
+    q = relaxation.connection_laplacian(small_graph)
     x = _random_point(rng, small_graph.num_poses, 5)
-    q_x = rbcd.apply_q(q, x)
-    options = rbcd.LocalOptions(rtr_iterations=2, tcg_iterations=10, gradient_tolerance=1e-6)
+    q_x = relaxation.apply_q(q, x)
+    options = local_solver.LocalOptions(
+        rtr_iterations=2, tcg_iterations=10, gradient_tolerance=1e-6
+    )
 
-    def update(group: np.ndarray) -> tuple[np.ndarray, rbcd.LocalStep]:
-        (block,) = rbcd.class_blocks(q, small_graph, robots, [group])
-        step = rbcd.local_update(block, x[block.poses], q_x[block.poses], options)
+    def update(group: np.ndarray) -> tuple[np.ndarray, local_solver.LocalStep]:
+        (block,) = blocks.class_blocks(q, small_graph, robots, [group])
+        step = local_solver.local_update(block, x[block.poses], q_x[block.poses], options)
         # the returned change of QX is that of the new poses
         moved = x.copy()
         moved[block.poses] = step.z
         np.testing.assert_allclose(
-            rbcd.flat(rbcd.apply_q(q, moved) - q_x)[block.reach_rows], step.q_change, atol=1e-10
+            relaxation.flat(relaxation.apply_q(q, moved) - q_x)[block.reach_rows],
+            step.q_change,
+            atol=1e-10,
         )
         return block.poses, step
 
@@ -229,11 +253,11 @@ def test_batched_class_update_equals_each_robot_updating_alone(small_graph, rng)
 def test_robot_by_robot_rounds_match_batched_rounds(small_graph):
     robots = np.repeat(np.arange(6), 5)
     runs = [
-        rbcd.solve_rbcd(
+        driver.solve_rbcd(
             with_start(small_graph, "chordal"),
             robots,
             Budget(iterations=40),
-            rbcd.RBCDOptions(batch_below=below),
+            driver.RBCDOptions(batch_below=below),
             rank=5,
             certify=False,
             seed=0,

@@ -8,6 +8,8 @@ import scipy.optimize
 from conftest import require_dataset
 
 from baselines import mm_pgo, robust
+from baselines.mm_pgo import driver, edges, restart
+from baselines.mm_pgo.team import TeamSystem
 from popbench import objective, se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
@@ -61,9 +63,9 @@ def test_unknown_kernel_is_a_clear_error(small_graph):
 # ----- the majoriser and the node update -----------------------------------------------------
 
 
-def _team(problem: DistributedProblem) -> mm_pgo.TeamSystem:
+def _team(problem: DistributedProblem) -> TeamSystem:
     graph = problem.graph
-    team = mm_pgo.TeamSystem(graph, mm_pgo.gauge_anchors(graph))
+    team = TeamSystem(graph, driver.gauge_anchors(graph))
     team.set_weights(*objective.weights(graph.information))
     return team
 
@@ -73,15 +75,15 @@ def test_surrogates_majorise_f_and_touch_it_at_the_base(small_graph, rng):
     graph, team = problem.graph, _team(problem)
     base = small_graph.poses
     moved = base + rng.normal(0.0, 0.3, base.shape)
-    base_terms = mm_pgo.edge_terms(base, team.edges)
-    base_costs = mm_pgo.edge_costs(base_terms, team.kappa, team.tau)
-    moved_costs = mm_pgo.edge_costs(mm_pgo.edge_terms(moved, team.edges), team.kappa, team.tau)
+    base_terms = edges.edge_terms(base, team.edges)
+    base_costs = edges.edge_costs(base_terms, team.kappa, team.tau)
+    moved_costs = edges.edge_costs(edges.edge_terms(moved, team.edges), team.kappa, team.tau)
     at_base = team.surrogates(base, base_costs, base, base_terms)
     at_moved = team.surrogates(moved, moved_costs, base, base_terms)
     assert at_base == pytest.approx(team.shares(base_costs))
     assert at_base.sum() == pytest.approx(objective.chordal_objective(graph, base))
     assert at_moved.sum() >= objective.chordal_objective(graph, moved)
-    moved_table, base_table = mm_pgo.pose_table(moved), mm_pgo.pose_table(base)
+    moved_table, base_table = edges.pose_table(moved), edges.pose_table(base)
     total = team.surrogate_total(moved_table, moved_costs, base_table, base_terms)
     assert total == pytest.approx(at_moved.sum(), rel=1e-12)
 
@@ -99,8 +101,8 @@ def test_body_gradient_matches_finite_differences(small_graph, rng):
     problem = _split(small_graph, 2)
     graph, team = problem.graph, _team(problem)
     poses = small_graph.poses + rng.normal(0.0, 0.1, small_graph.poses.shape)
-    terms = mm_pgo.edge_terms(poses, team.edges)
-    gradient = team.scatter @ mm_pgo.body_gradients(terms, team.edges, team.kappa, team.tau)
+    terms = edges.edge_terms(poses, team.edges)
+    gradient = team.scatter @ edges.body_gradients(terms, team.edges, team.kappa, team.tau)
     direction = rng.normal(size=poses.shape)
 
     def f(step: float) -> float:
@@ -120,7 +122,7 @@ def test_translation_recovery_minimises_every_surrogate(small_graph, rng, robots
     anchors = team.anchors
     assert anchors.tolist() == ([0] if robots == 1 else [])  # a team's gauge is free
     base = small_graph.poses + rng.normal(0.0, 0.1, small_graph.poses.shape)
-    base_terms = mm_pgo.edge_terms(base, team.edges)
+    base_terms = edges.edge_terms(base, team.edges)
     headings = base[:, 2] + rng.normal(0.0, 0.05, base.shape[0])
     headings[anchors] = base[anchors, 2]
     recovered = team.recover_translations(headings, base, base_terms).poses
@@ -128,8 +130,8 @@ def test_translation_recovery_minimises_every_surrogate(small_graph, rng, robots
 
     def total(translations: np.ndarray) -> float:
         poses = np.column_stack([translations.reshape(-1, 2), headings])
-        terms = mm_pgo.edge_terms(poses, team.edges)
-        costs = mm_pgo.edge_costs(terms, team.kappa, team.tau)
+        terms = edges.edge_terms(poses, team.edges)
+        costs = edges.edge_costs(terms, team.kappa, team.tau)
         return float(team.surrogates(poses, costs, base, base_terms).sum())
 
     # Independent reference: the finite-difference gradient of Σ_α G^α vanishes off the anchors.
@@ -145,7 +147,7 @@ def test_output_keeps_the_start_frame_of_robot_0s_first_pose(small_graph):
     result = mm_pgo.solve(problem, Budget(iterations=20))
     first = int(np.flatnonzero(problem.graph.robots == 0)[0])
     assert result.poses[first] == pytest.approx(start[first], abs=1e-12)
-    moved = mm_pgo.to_frame_of(result.poses, 5, np.array([3.0, -1.0, 2.0]))
+    moved = driver.to_frame_of(result.poses, 5, np.array([3.0, -1.0, 2.0]))
     assert moved[5] == pytest.approx([3.0, -1.0, 2.0])
     chordal = objective.chordal_objective
     assert chordal(problem.graph, moved) == pytest.approx(chordal(problem.graph, result.poses))
@@ -155,8 +157,8 @@ def test_hessian_drift_is_the_relative_jacobian_change(small_graph, rng):
     problem = _split(small_graph, 3)
     graph, team = problem.graph, _team(problem)
     base = small_graph.poses
-    team.factorise_hessian(mm_pgo.edge_terms(base, team.edges))
-    assert team.hessian_drift(mm_pgo.edge_terms(base, team.edges)) == pytest.approx(0.0, abs=1e-12)
+    team.factorise_hessian(edges.edge_terms(base, team.edges))
+    assert team.hessian_drift(edges.edge_terms(base, team.edges)) == pytest.approx(0.0, abs=1e-12)
     moved = base + rng.normal(0.0, 0.1, base.shape)
 
     # Independent reference: J_e = [−I, −J R_pᵀ(t_q − t_p) | R(θ_q − θ_p), 0] on intra edges.
@@ -171,7 +173,7 @@ def test_hessian_drift_is_the_relative_jacobian_change(small_graph, rng):
 
     before, after = jacobians(base), jacobians(moved)
     change = np.linalg.norm(after - before, axis=(1, 2)) / np.linalg.norm(before, axis=(1, 2))
-    drift = team.hessian_drift(mm_pgo.edge_terms(moved, team.edges))
+    drift = team.hessian_drift(edges.edge_terms(moved, team.edges))
     assert drift == pytest.approx(change.max(), rel=1e-9)
     every = mm_pgo.solve(problem, Budget(iterations=30), hessian_tolerance=0.0)
     never = mm_pgo.solve(problem, Budget(iterations=30), hessian_tolerance=1e9)
@@ -344,7 +346,7 @@ def test_m3500_within_twice_the_originals_distance_to_the_optimum():
 def test_slow_average_follows_a_falling_objective():
     # From a start far above the optimum F falls by orders of magnitude; a candidate well above
     # the recent F must trigger a hard restart (with F̄₀ near the first F it never would).
-    state = mm_pgo.RestartState()
+    state = restart.RestartState()
     for value in np.concatenate([np.geomspace(1e6, 100.0, 200), np.full(200, 100.0)]):
         state.observe(float(value))
     assert state.average_slow < 200.0

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from conftest import require_dataset
 
-from baselines import mm_pgo, rbcd
+from baselines import mm_pgo
+from baselines.rbcd import relaxation
 from popbench import se2
 from popbench.distributed import DistributedProblem
 from popbench.initial import with_start
@@ -25,14 +26,19 @@ def _resampled(graph, sigma: float, seed: int = 0):
 
 
 def test_edge_cost_and_cost_change_agree_with_the_quadratic_form(small_graph, rng):
-    q = rbcd.connection_laplacian(small_graph)
-    lift = rbcd.random_stiefel(5, 0)
-    x = rbcd.lift(small_graph.poses, lift)
-    x_new = rbcd.lift(small_graph.poses + rng.normal(0.0, 0.01, small_graph.poses.shape), lift)
-    q_x, q_new = rbcd.apply_q(q, x), rbcd.apply_q(q, x_new)
-    f, f_new = rbcd.edge_relaxed_cost(small_graph, x), rbcd.edge_relaxed_cost(small_graph, x_new)
-    assert f == pytest.approx(rbcd.relaxed_cost(x, q_x), rel=1e-10)
-    assert rbcd.cost_change(x, q_x, x_new, q_new) == pytest.approx(f_new - f, rel=1e-8)
+    q = relaxation.connection_laplacian(small_graph)
+    lift = relaxation.random_stiefel(5, 0)
+    x = relaxation.lift(small_graph.poses, lift)
+    x_new = relaxation.lift(
+        small_graph.poses + rng.normal(0.0, 0.01, small_graph.poses.shape), lift
+    )
+    q_x, q_new = relaxation.apply_q(q, x), relaxation.apply_q(q, x_new)
+    f, f_new = (
+        relaxation.edge_relaxed_cost(small_graph, x),
+        relaxation.edge_relaxed_cost(small_graph, x_new),
+    )
+    assert f == pytest.approx(relaxation.relaxed_cost(x, q_x), rel=1e-10)
+    assert relaxation.cost_change(x, q_x, x_new, q_new) == pytest.approx(f_new - f, rel=1e-8)
 
 
 @pytest.mark.parametrize("name", ["mm-pgo", "ml-pgo", "cc-pgo"])

@@ -44,9 +44,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-import pymetis
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from popbench import objective, se2
 from popbench.distributed import DistributedProblem
@@ -54,6 +52,7 @@ from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.methods import Budget, Result
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.sparse import nested_dissection, spd_lu
 from popbench.status import Status
 
 ROTATION_COSTS = ("geodesic", "chordal")
@@ -63,8 +62,6 @@ _INITIAL_DAMPING = 1e-8
 _SHRINK_FLOOR = 0.1
 _MIN_DAMPING_SCALE = 1e-6
 _STEP_TOLERANCE = 1e-14
-# SuperLU settings for symmetric positive-definite matrices: diagonal pivots, symmetric mode.
-_SPD_OPTIONS = {"diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
 
 
 class LMOutcome(NamedTuple):
@@ -194,10 +191,8 @@ def _vertex_order(graph: PoseGraph, free: np.ndarray) -> np.ndarray:
         shape=(num_free, num_free),
     )
     adjacency.sum_duplicates()
-    _, new_position = pymetis.nested_dissection(
-        adjacency=pymetis.CSRAdjacency(adj_starts=adjacency.indptr, adjacent=adjacency.indices)
-    )
-    return np.asarray(new_position, dtype=np.int64)
+    _, position = nested_dissection(adjacency.indptr, adjacency.indices)
+    return position
 
 
 def _linearise(
@@ -306,7 +301,7 @@ def solve_graph(
         if seconds is not None and time.perf_counter() - started > seconds:
             break
         scale = np.maximum(hessian[normal.diagonal_slots], _MIN_DAMPING_SCALE)
-        lu = splu(normal.system(hessian, damping * scale), permc_spec="NATURAL", **_SPD_OPTIONS)
+        lu = spd_lu(normal.system(hessian, damping * scale))
         step = -lu.solve(gradient)
         model_decrease = float(-gradient @ step + damping * (step * scale) @ step)
         trial = normal.update(poses, step)
