@@ -1,8 +1,8 @@
 """Configuration dataclasses for GA-SAC, MAPPO and IPPO, split BenchMARL-style into model /
 algorithm / experiment / task.
 
-Values are the paper's (§IV-A, REFERENCES.md §1.5) where it gives them; every other value is a
-choice written down here with its reason (REFERENCES.md §1.8 lists the gaps).
+Values are the paper's (§IV-A) where it gives them; every other value is a choice written down
+here with its reason (docs/training.md).
 """
 
 from __future__ import annotations
@@ -511,7 +511,7 @@ CPU_IMITATION = TrainConfig(
     task=TRAJECTORY_TASK,
     imitation=ImitationConfig(episodes=100, num_envs=8, lr=1e-3, beta_decay=0.8),
 )
-# cpu-imitation on problems with injected outliers (issue 15, item 4; docs/training.md): rates
+# cpu-imitation on problems with injected outliers (docs/training.md): rates
 # U(0, 0.2) per training problem, and the supervised gate loss in both phases (weight 1; beyond
 # the paper). The same budgets as cpu-imitation; no behaviour-cloning term in GA-SAC (its pilot
 # did not show that it helps, docs/training.md).
@@ -550,7 +550,7 @@ CPU_RESIDUAL = dataclasses.replace(
         critic_patience=4,
     ),
 )
-# MAPPO / IPPO in cpu-residual's setting (issue 29, docs/algorithms.md): its networks, task,
+# MAPPO / IPPO in cpu-residual's setting (docs/algorithms.md): its networks, task,
 # reward (the local F, no terminal bonus), experiment and imitation phase; γ = 0.9 as GA-SAC's
 # cpu presets. `--imitation-episodes 0` starts from scratch.
 CPU_PPO = dataclasses.replace(CPU_RESIDUAL, ppo=PPOConfig(gamma=CPU_RESIDUAL.algorithm.gamma))

@@ -1,4 +1,4 @@
-"""Checks that the correction head learned something (issue 26), measured on held-out states.
+"""Checks that the correction head learned something, measured on held-out states.
 
 :func:`correction_probe` runs the deterministic actor for one episode on held-out synthetic
 problems (the experiment's kind, a seed stream disjoint from training) and, on every step where

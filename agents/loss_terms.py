@@ -13,20 +13,19 @@ the environment execute the expert's Δ on e, (μ, σ) the correction head's pre
 (δ = bound · tanh(u), u ~ N(μ, σ²)) and sg the stop-gradient. The mean regresses the label in
 units of the batch's own label scale s_u (1.4826 × the median absolute deviation of u*,
 robust to the heavy tail of labels near outliers), where a squared error in units of the ±5σ
-bound left the head a constant (issue 26). The second term is the Gaussian likelihood of the
+bound left the head a constant. The second term is the Gaussian likelihood of the
 label under σ with the mean held fixed and the standardised error capped at 3: σ learns the
 head's real error (the exploration width GA-SAC starts from) without the 1/σ² weight that made
 a full NLL's mean gradient explode on rare large labels (measured in a pilot: delta loss spikes
 of 10³ and an episode whose local F rose).
 
-Supervised gate loss (issue 15, item 4): every layer's gate logit α_ℓ/τ of an edge is regressed
-on the injected label "keep" (1 for an inlier, 0 for an injected outlier) by binary cross-entropy,
-σ(α/τ) being the noise-free relaxation u of the hard-concrete gate (the evaluation gate is
-z = clamp(1.2 u − 0.1, 0, 1), so u > ½ ⇔ z > ½). Outliers are rare (a few per cent of a local
-graph's edges), so the two classes are weighted equally: L_gate = ½ (mean BCE over the outlier
-edges + mean BCE over the inlier edges), a class absent from the batch contributing 0. The gate
-keeps its hard-concrete form and its L1 penalty; this term only adds a label.
-"""
+Supervised gate loss (beyond the paper; docs/training.md): every layer's gate logit α_ℓ/τ of an
+edge is regressed on the injected label "keep" (1 for an inlier, 0 for an injected outlier) by
+binary cross-entropy, σ(α/τ) being the noise-free relaxation u of the hard-concrete gate (the
+evaluation gate is z = clamp(1.2 u − 0.1, 0, 1), so u > ½ ⇔ z > ½). Outliers are rare (a few per
+cent of a local graph's edges), so the two classes are weighted equally: L_gate = ½ (mean BCE over
+the outlier edges + mean BCE over the inlier edges), a class absent from the batch contributing 0.
+The gate keeps its hard-concrete form and its L1 penalty; this term only adds a label."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""prop-v1 and prop-v2 behind the method interface (paper §III-D; DESIGN "Methods").
+"""prop-v1 and prop-v2 behind the method interface (paper §III-D; docs/methods.md).
 
 prop-v1
     1. Every robot holds its local graph (owned poses + separator copies) and runs the shared

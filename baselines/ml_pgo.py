@@ -4,7 +4,7 @@ What distinguishes ML-PGO from CC-PGO is (1) how the poses are split among the r
 multilevel graph partitioner (coarsen → partition → refine; the paper uses KaHIP presets, here
 METIS via :func:`popbench.partition.partition`) giving balanced parts with few cut edges, and (2)
 an accelerated RBCD whose momentum restarts **adaptively, whenever the objective increases**
-(REFERENCES §4.1; by more than a relative 1e-9, ``rbcd.ADAPTIVE_RESTART_TOLERANCE``, so that
+(Li et al. 2024; by more than a relative 1e-9, ``driver.ADAPTIVE_RESTART_TOLERANCE``, so that
 floating-point noise near convergence does not reset the momentum), instead of every 30
 iterations. Everything else (relaxation, rank 5, lifting the problem's start, local trust-region
 updates, rounding) is shared with CC-PGO in :mod:`baselines.rbcd`.

@@ -4,7 +4,7 @@ An edge's *weighted squared residual* is its chordal cost (SE-Sync convention, n
 
     s_e = κ_e ‖R_q − R_p R̃_e‖²_F + τ_e ‖t_q − t_p − R_p t̃_e‖²   (dimensionless),
 
-and a kernel replaces ``s`` by ``ρ(s)`` (Fan & Murphey's MM-PGO, REFERENCES.md §3.2, with
+and a kernel replaces ``s`` by ``ρ(s)`` (Fan & Murphey's MM-PGO, with
 scale ``c``; ``ρ(s) = s`` for small ``s``, ``ρ'(0) = 1``):
 
 =========  ==========================================  ==========================

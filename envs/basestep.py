@@ -1,5 +1,5 @@
-"""The Gauss–Newton base step of every candidate edge at once, from subtree sums (issue 26), and
-of one chosen edge from its boundary (issue 27).
+"""The Gauss–Newton base step of every candidate edge at once, from subtree sums, and of
+one chosen edge from its boundary.
 
 A correction Δ on edge ``c = (p → q)`` of an agent's spanning tree moves the subtree ``S_c`` of
 its mover rigidly (:meth:`envs.core.PGOCore.subtree_move`). With the whitened errors

@@ -1,4 +1,4 @@
-"""Batched torch core of the multi-agent PGO environment (paper §III-B, DESIGN "The environment").
+"""Batched torch core of the multi-agent PGO environment (paper §III-B; docs/environment.md).
 
 One :class:`PGOCore` holds ``B`` independent problems of ``n`` robots (agents). It is the single
 implementation behind the TorchRL env (:mod:`envs.torchrl_env`, any ``B``) and the PettingZoo env

@@ -1,4 +1,4 @@
-"""The expert of the PGO environment (issue 14, item 3): each agent's local-graph optimum, walked.
+"""The expert of the PGO environment: each agent's local-graph optimum, walked.
 
 Target: for each agent, the optimum of its own local graph found by the project's LM
 (:func:`popbench.solvers.lm.solve_graph`, local vertex 0 — the tree root, the agent's first owned

@@ -1,4 +1,4 @@
-"""GaussNewtonSweep: the simple non-learned policy of the subtree mode (issue 14, item 6).
+"""GaussNewtonSweep: the simple non-learned policy of the subtree mode.
 
 One root-outward pass over each agent's spanning-tree edges (the order of
 :class:`envs.expert.Expert`, then the remaining edges with ``Δ = 0``). The Δ of a tree edge is

@@ -1,4 +1,4 @@
-"""Spanning trees of the agents' local graphs and the separator placement (issue 14, item 1).
+"""Spanning trees of the agents' local graphs and the separator placement.
 
 The ``subtree`` correction mode of :class:`envs.core.PGOCore` (Olson et al. 2006's incremental
 parameterisation, TORO) moves a vertex rigidly together with its subtree in a spanning tree of the

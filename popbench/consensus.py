@@ -1,5 +1,5 @@
-"""Information-weighted ADMM consensus over separator poses (paper §III-D, after Fung et al. 2019;
-REFERENCES.md §8). Measurements and the variants tried and not kept: docs/consensus.md.
+"""Information-weighted ADMM consensus over separator poses (paper §III-D, after Fung et al. 2019).
+Measurements and the variants tried and not kept: docs/consensus.md.
 
 Every robot ``i`` holds local copies ``x^i`` of its local vertices (owned poses and separator
 copies, :class:`popbench.distributed.LocalGraph`). A separator ``s`` has one copy per local graph

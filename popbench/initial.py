@@ -8,7 +8,7 @@ the initial estimate and ``problem.start`` names how they were made. Every metho
 Starts (:data:`STARTS`):
 
 * ``"odometry"``: composition of the odometry chain (:meth:`PoseGraph.odometry_initial`),
-  the standard, hard start (DESIGN "Initial estimate").
+  the standard, hard start (docs/conventions.md, "Initial estimate").
 * ``"chordal"``: chordal relaxation + translation recovery
   (:func:`popbench.solvers.chordal.chordal_initialisation`).
 * ``"given"``: the poses the graph already holds (a file's estimate, or a caller's).

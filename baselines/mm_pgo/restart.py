@@ -15,9 +15,9 @@ MAX_SOFT_HITS_AVERAGE, MAX_SOFT_HITS_INCREASE = 10, 25
 
 @dataclasses.dataclass
 class RestartState:
-    """The team's acceleration / adaptive-restart state (REFERENCES §3.5).
+    """The team's acceleration / adaptive-restart state (Fan & Murphey 2024, AMM-PGO).
 
-    **Acceleration** (AMM-PGO, REFERENCES §3.5): ``s_{k+1} = ½ + ½√(4s_k² + 1)``,
+    **Acceleration** (AMM-PGO): ``s_{k+1} = ½ + ½√(4s_k² + 1)``,
     ``γ_k = (s_k − 1)/s_{k+1}``, ``Y = Xᵏ ⊕ γ_k(Xᵏ ⊖ Xᵏ⁻¹)`` (translations linearly, headings by the
     wrapped difference; each robot extrapolates its own and its neighbours' poses, which it holds
     from the last two exchanges), candidate = node update from ``Y`` without the safeguard. With
@@ -30,7 +30,7 @@ class RestartState:
     are applied to team sums (two scalars all-reduced per iteration, as AMM-PGO* with its master
     node), not per robot as in AMM-PGO# (the per-robot rule oscillated: docs/mm_pgo.md).
 
-    *Deviation (odometry starts):* after each update ``F̄₀ ← min(F̄₀, F̄₁)``. §3.5 initialises
+    *Deviation (odometry starts):* after each update ``F̄₀ ← min(F̄₀, F̄₁)``. AMM-PGO initialises
     ``F̄₀`` at the first ``F``; with η₀ = 5e-4 it then stays near that ``F`` for thousands of
     iterations, so from a start orders of magnitude above the optimum (odometry) the hard restart
     never fired. Capped by the fast average, ``F̄₀`` follows the actual ``F`` down. Measurements and

@@ -364,7 +364,7 @@ class TeamSystem:
         of ``F`` ``shares``), with ``G^α(new | poses) ≤ shares[α]``; a robot whose step fails
         halves its own step.
 
-        **Node update** (in place of MM-PGO's ``proximal`` + TNT refinement, REFERENCES §3.4).
+        **Node update** (in place of MM-PGO's ``proximal`` + TNT refinement).
         Minimising (1) exactly over ``SE(2)^{n_α}`` is a local PGO; an MM step only needs to
         *decrease* it. Each robot takes one Gauss–Newton step on (1) and recovers its translations
         in closed form:

@@ -170,11 +170,11 @@ def run_rbcd(
     """RBCD / RBCD++ from ``x0`` ``(N, 3, r)`` for ``budget.iterations`` rounds (or until
     ``budget.seconds``); one round as in the module docstring (one colour class updates).
 
-    **Acceleration** (RBCD++, REFERENCES §2.4), with ``B`` blocks (colour classes):
+    **Acceleration** (RBCD++, dpgo), with ``B`` blocks (colour classes):
     ``γ ← (1 + √(1 + 4B²γ²)) / (2B)``, ``α ← 1/(γB)``, ``Y ← Proj((1−α)X + αV)``, the selected block
     ``X_b ← LocalOpt(Y)`` (others ``X ← Y``), ``V ← Proj(V + γ(X − Y))``. Restart ("fixed", cc-pgo):
     every ``restart_interval`` (30) iterations a plain update from ``X`` and ``V = X``, ``γ = 0``;
-    ("adaptive", ml-pgo, §4.1): whenever the objective increases by more than a relative
+    ("adaptive", ml-pgo, Li et al. 2024): whenever the objective increases by more than a relative
     ``ADAPTIVE_RESTART_TOLERANCE`` (1e-9 of ``f``), the iteration is redone as a plain update from
     ``X`` and the momentum reset. The tolerance ignores increases at the level of the floating-point
     error of ``f`` near convergence (measured: docs/rbcd.md). ``f(x0)`` is ``initial_cost`` (e.g.
@@ -214,7 +214,7 @@ def run_rbcd(
         if plain:
             update = rounds.update(x, q_x, iteration)
             messages += update.separators
-        else:  # RBCD++ (§2.4): γ ← (1 + √(1 + 4B²γ²)) / (2B), α ← 1/(γB), B = num_blocks
+        else:  # RBCD++: γ ← (1 + √(1 + 4B²γ²)) / (2B), α ← 1/(γB), B = num_blocks
             gamma = (1.0 + np.sqrt(1.0 + 4.0 * num_blocks**2 * gamma**2)) / (2.0 * num_blocks)
             alpha = 1.0 / (gamma * num_blocks)
             y = project_manifold((1.0 - alpha) * x + alpha * v)  # Y ← Proj((1−α)X + αV)

@@ -44,7 +44,8 @@ def measurement_matrices(graph: PoseGraph) -> np.ndarray:
 
 
 def connection_laplacian(graph: PoseGraph) -> sp.csr_matrix:
-    """The data matrix ``Q`` (REFERENCES §2.1), ``(3N, 3N)`` sparse symmetric PSD.
+    """The data matrix ``Q`` (dpgo's connection Laplacian ``AΩAᵀ``), ``(3N, 3N)`` sparse
+    symmetric PSD.
 
     ``½ tr(Xᵀ Q X)`` with ``X`` ``(3N, r)`` is the relaxed cost ``f`` (module docstring).
     """

@@ -24,7 +24,7 @@ def rounding_basis(x: np.ndarray, anchor: int, rounding: str = "svd") -> np.ndar
     of ``Y = [Y_1 … Y_N]`` (``r × 2N``), i.e. the top eigenvectors of ``Y Yᵀ = Σ_i Y_i Y_iᵀ``,
     an ``r × r`` sum of per-robot terms (each robot sends one ``r × r`` matrix, so it stays
     distributed), with the second column negated when most ``det(Y_iᵀ U) < 0`` (the reflection
-    fix). ``"anchor"`` (dpgo ``getTrajectoryInGlobalFrame``, §2.8): ``U = Y_a``, the anchor's
+    fix). ``"anchor"`` (dpgo ``getTrajectoryInGlobalFrame``): ``U = Y_a``, the anchor's
     lifted rotation. At a rank-2 ``X`` the two agree; away from one (an unconverged iterate that
     still uses the extra dimensions, e.g. after 1000 rounds from the odometry start) the anchor
     basis discards everything orthogonal to one pose's plane, the SVD basis the least energy.
@@ -56,7 +56,7 @@ def round_solution(
     **Rounding** (:func:`round_solution`). By default SE-Sync's: project every ``X_i`` onto the
     top-2 eigenvectors ``U`` of ``Σ_i Y_i Y_iᵀ`` (``r × r``, summed over robots, so one small
     message per robot), with the reflection fixed by a determinant vote, then each ``Y_iᵀ U`` to its
-    nearest rotation. dpgo's anchor rounding (``U = Y_a``, REFERENCES §2.8) is
+    nearest rotation. dpgo's anchor rounding (``U = Y_a``, ``getTrajectoryInGlobalFrame``) is
     ``rounding="anchor"``. The two agree at a rank-2 iterate (every converged run here), but not at
     an unconverged one (measured: docs/rbcd.md).
     """
@@ -68,9 +68,10 @@ def round_solution(
 
 
 def certificate_min_eigenvalue(q: sp.spmatrix, x: np.ndarray) -> float:
-    """``λ_min(S)`` with ``S = Q − SymBlockDiag(Λ)`` (REFERENCES §2.9): ``Λ_i`` on the rotation
-    rows of pose ``i``, zero on translations. ``λ_min ≥ −ε`` certifies that ``X`` is a global
-    minimiser of the relaxation (``SXᵀ = 0`` at critical points, so ``λ_min ≤ 0``)."""
+    """``λ_min(S)`` with ``S = Q − SymBlockDiag(Λ)`` (SE-Sync's certificate; not in dpgo's code):
+    ``Λ_i`` on the rotation rows of pose ``i``, zero on translations. ``λ_min ≥ −ε`` certifies
+    that ``X`` is a global minimiser of the relaxation (``SXᵀ = 0`` at critical points, so
+    ``λ_min ≤ 0``)."""
     lam = multipliers(x, apply_q(q, x))  # (N, 3)
     n = x.shape[0]
     lam_full = np.zeros((n, 3, 3))

@@ -156,8 +156,8 @@ def train_command(
             help="Model/algorithm sizes: paper (5×128 GNN, §IV-A), cpu-small, cpu-imitation "
             "(imitation of the expert first, then GA-SAC), cpu-imitation-robust (the same "
             "on problems with injected outliers, with a supervised gate loss), cpu-residual "
-            "(issue 26: a correction head that reads the base step, GA-SAC on the local F with "
-            "a KL anchor to the imitation policy), cpu-mappo or cpu-ippo (issue 29: MAPPO / IPPO "
+            "(a correction head that reads the base step, GA-SAC on the local F with "
+            "a KL anchor to the imitation policy), cpu-mappo or cpu-ippo (MAPPO / IPPO "
             "in cpu-residual's networks, task and imitation phase; docs/algorithms.md)."
         ),
     ] = "paper",

@@ -1,4 +1,4 @@
-"""Held-out learning curves over training runs, aggregated over seeds (issue 29).
+"""Held-out learning curves over training runs, aggregated over seeds.
 
 A run folder is what ``popbench train`` writes: ``snapshots/actor-FRAMES.pt`` (the actor at the
 start, at every checkpoint and at the end) and, once scored, ``heldout/heldout.csv`` (``popbench
