@@ -21,28 +21,9 @@ this loss: it makes the reward part of the soft Q target O(1) beside the entropy
 Huber critic loss (`AlgorithmConfig.huber_delta`) bounds the gradient of the rare large TD errors.
 Both are departures from the paper; their reasons and measurements: docs/training.md.
 
-Supervised terms (beyond the paper; agents.loss_terms, docs/training.md), each with its own key
-and only when its weight is > 0, so that the paper's GA-SAC is unchanged by default:
-
-  loss_bc   = λ_bc · (L_edge + L_delta): behaviour cloning of the expert on the replayed states.
-              The labels were stored with each transition at collection time (the env's
-              ``labels=True``: ("agents", "labels", "right" | "expert_edge" | "expert_delta"),
-              the labels of the transition's state s). L_edge = −log Σ_{e right} π(e | s);
-              L_delta is the squared error of the actor's deterministic correction on the
-              expert's edge (teacher forcing: one more actor pass, no sampling) against the
-              expert's, in units of the action bound.
-  loss_gate = λ_gate_sup · L_gate: the supervised gate loss of the actor pass's gate logits
-              against ("agents", "labels", "outlier"), the injected outliers.
-  loss_anchor = λ_k · E[KL(π(·|s) ‖ π₀(·|s)) + KL(N(μ, σ²) ‖ N(μ₀, σ₀²))]: the fine-tuning
-              anchor toward the start policy π₀ (a frozen copy of the imitation actor; the
-              correction's KL on the actor's chosen edge, in the pre-tanh space), its weight
-              decaying linearly to 0 (AlgorithmConfig.anchor_weight / anchor_updates).
-
-Reward scale and target entropy are buffers: with AlgorithmConfig.auto_reward_scale /
-auto_delta_entropy the trainer sets them from the warm-up data (agents.trainer).
-
-Both reach only the actor's parameters. They do not depend on the critic, so they act during
-the critic warm-up too (agents.trainer.optimise leaves out loss_actor only).
+Supervised terms (beyond the paper; agents.loss_terms, docs/training.md): behaviour cloning,
+the supervised gate loss and the fine-tuning anchor, each only when its weight is > 0, so the
+paper's GA-SAC is unchanged by default (their definitions: :meth:`GASACLoss.forward`).
 
 Gate L1: only the actor's gates carry the L1 penalty. The critic is a value estimator whose gates
 flag nothing (prop-v1's inlier flags are the actor's); penalising them only biases the value
@@ -343,7 +324,29 @@ class GASACLoss(LossModule):
 
         The order of the parts is fixed (target, critic, actor, temperatures, supervised
         terms): the target and the actor each sample an action, so reordering them changes the
-        random stream (the supervised terms sample nothing)."""
+        random stream (the supervised terms sample nothing).
+
+        Supervised terms, each under its own key and only when its weight is > 0:
+
+        * ``loss_bc = λ_bc · (L_edge + L_delta)``: behaviour cloning of the expert on the
+          replayed states, from the labels stored with each transition at collection time (the
+          env's ``labels=True``: ("agents", "labels", "right" | "expert_edge" |
+          "expert_delta"), the labels of the transition's state s). ``L_edge = −log Σ_{e right}
+          π(e | s)``; ``L_delta`` is the squared error of the actor's deterministic correction
+          on the expert's edge (teacher forcing: one more actor pass, no sampling) against the
+          expert's, in units of the action bound.
+        * ``loss_gate = λ_gate_sup · L_gate``: the supervised gate loss of the actor pass's gate
+          logits against ("agents", "labels", "outlier"), the injected outliers.
+        * ``loss_anchor = λ_k · E[KL(π(·|s) ‖ π₀(·|s)) + KL(N(μ, σ²) ‖ N(μ₀, σ₀²))]``: the
+          fine-tuning anchor toward the start policy π₀ (a frozen copy of the imitation actor;
+          the correction's KL on the actor's chosen edge, in the pre-tanh space), its weight
+          decaying linearly to 0 (AlgorithmConfig.anchor_weight / anchor_updates).
+
+        They reach only the actor's parameters and do not depend on the critic, so they act
+        during the critic warm-up too (agents.trainer.optimise leaves out loss_actor only).
+        Reward scale and target entropy are buffers: with AlgorithmConfig.auto_reward_scale /
+        auto_delta_entropy the trainer sets them from the warm-up data (agents.trainer).
+        """
         alphas = self._alphas()
         graphs = self._graphs(tensordict, next_=False)
         next_graphs = self._graphs(tensordict, next_=True)

@@ -1,5 +1,4 @@
 """Information-weighted ADMM consensus over separator poses (paper §III-D, after Fung et al. 2019).
-Measurements and the variants tried and not kept: docs/consensus.md.
 
 Every robot ``i`` holds local copies ``x^i`` of its local vertices (owned poses and separator
 copies, :class:`popbench.distributed.LocalGraph`). A separator ``s`` has one copy per local graph
@@ -25,10 +24,8 @@ it belongs to; ADMM drives the copies to a consensus value ``z_s``:
 * stop when the copies agree: primal residual ``max_{s,i} ‖x_s^i ⊖ z_s‖_∞ < tol`` (m and rad
   alike). The dual residual ``max_s ‖z_s^{k+1} ⊖ z_s^k‖_∞`` is recorded, not used to stop:
   consensus reconciles the robots' estimates; it is not run to global optimality (ADMM's tail is
-  slow); Prop-V2's LM refinement does that. From an odometry start it often does not reach
-  agreement within the 200-iteration cap, and there the output is very sensitive to round-off,
-  so the x-update systems are solved directly (exact up to round-off). Measurements:
-  docs/consensus.md.
+  slow); Prop-V2's LM refinement does that. The x-update systems are solved directly (exact up
+  to round-off; why, and the measurements and variants not kept: docs/consensus.md).
 
 ``ρ`` is dimensionless: it scales the copies' own information, so ``ρ = 1`` makes the consensus
 penalty on a copy as stiff as the robot's own edges on that pose. Default ``ρ = 3`` and one

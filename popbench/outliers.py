@@ -21,27 +21,8 @@ looks exactly as confident as the inlier it replaced. The estimate ``graph.poses
 unchanged.
 
 **Added false loop closures** (:func:`add_false_loop_closures`, the models of
-:data:`ADDED_MODELS`, after Sünderhauf & Protzel's Vertigo ``generateDataset.py``, whose data
-the DCS, max-mixture and GNC papers use): instead of corrupting edges, ``round(rate · L / g)``
-groups of ``g`` new edges are *added*, ``L`` the graph's loop closures (kinds LOOP and
-INTER_LOOP), ``g`` the group size (1 except for ``vertigo-grouped``):
-
-* ``vertigo-random``: between two poses ``a, b`` drawn uniformly with ``|a − b| ≥ 2``.
-* ``vertigo-local``: ``b − a`` drawn uniformly in ``2 … LOCAL_WINDOW`` (20 poses, Vertigo's
-  window), ``a`` uniformly among the poses where that fits.
-* ``vertigo-grouped``: a random pair ``(a, b)`` as ``vertigo-random``, then the ``g`` mutually
-  consistent edges ``(a + k, b + k)``, ``k = 0 … g − 1``, all with the same measurement and
-  information (a front end that matched a whole stretch of trajectory wrongly).
-
-``|a − b| ≥ 2`` (Vertigo's rule): an edge between consecutive ids would be odometry. Each group's
-measurement is drawn around the identity, ``t ~ N(0, ADDED_SIGMA_T² I₂)`` [m] and
-``θ ~ N(0, ADDED_SIGMA_THETA²)`` [rad] (0.3 m and 10°, Vertigo's); its information is that of a
-loop closure of the graph drawn uniformly (so the added edges' information is distributed as the
-true closures'). Nothing in the graph tells an added edge from a true closure: it is written in
-the orientation of the graph's loop closures (tail < head with the share of them that are), its
-kind is the one :func:`popbench.graph.robot_kinds` (or :func:`~popbench.graph.single_robot_kinds`)
-gives any edge between those poses, and it is inserted in the edge list where a front end would
-emit it, after the last edge that reaches its later pose. Only the returned mask knows it.
+:data:`ADDED_MODELS`, after Sünderhauf & Protzel's Vertigo ``generateDataset.py``): instead of
+corrupting edges, groups of new, wrong loop closures are *added* (the models: that function).
 
 **Scores** (:func:`precision_recall`) are computed over the candidate set's edges (``among=``):
 an edge that could not be an outlier is neither a hit nor a false alarm.
@@ -179,7 +160,30 @@ def precision_recall(
 def add_false_loop_closures(
     graph: PoseGraph, rate: float, model: str, seed: int = 0, group_size: int = DEFAULT_GROUP_SIZE
 ) -> tuple[PoseGraph, np.ndarray]:
-    """Add false loop closures to ``graph`` (see the module docstring).
+    """Add false loop closures to ``graph``.
+
+    **Added false loop closures** (:func:`add_false_loop_closures`, the models of
+    :data:`ADDED_MODELS`, after Sünderhauf & Protzel's Vertigo ``generateDataset.py``, whose data
+    the DCS, max-mixture and GNC papers use): instead of corrupting edges, ``round(rate · L / g)``
+    groups of ``g`` new edges are *added*, ``L`` the graph's loop closures (kinds LOOP and
+    INTER_LOOP), ``g`` the group size (1 except for ``vertigo-grouped``):
+
+    * ``vertigo-random``: between two poses ``a, b`` drawn uniformly with ``|a − b| ≥ 2``.
+    * ``vertigo-local``: ``b − a`` drawn uniformly in ``2 … LOCAL_WINDOW`` (20 poses, Vertigo's
+      window), ``a`` uniformly among the poses where that fits.
+    * ``vertigo-grouped``: a random pair ``(a, b)`` as ``vertigo-random``, then the ``g`` mutually
+      consistent edges ``(a + k, b + k)``, ``k = 0 … g − 1``, all with the same measurement and
+      information (a front end that matched a whole stretch of trajectory wrongly).
+
+    ``|a − b| ≥ 2`` (Vertigo's rule): an edge between consecutive ids would be odometry. Each
+    group's measurement is drawn around the identity, ``t ~ N(0, ADDED_SIGMA_T² I₂)`` [m] and ``θ ~
+    N(0, ADDED_SIGMA_THETA²)`` [rad] (0.3 m and 10°, Vertigo's); its information is that of a loop
+    closure of the graph drawn uniformly (so the added edges' information is distributed as the true
+    closures'). Nothing in the graph tells an added edge from a true closure: it is written in the
+    orientation of the graph's loop closures (tail < head with the share of them that are), its kind
+    is the one :func:`popbench.graph.robot_kinds` (or :func:`~popbench.graph.single_robot_kinds`)
+    gives any edge between those poses, and it is inserted in the edge list where a front end would
+    emit it, after the last edge that reaches its later pose. Only the returned mask knows it.
 
     Args:
         graph: the clean graph; its loop closures (kinds LOOP, INTER_LOOP) set the count and
