@@ -442,30 +442,10 @@ def _build(kind: type, values: dict[str, Any]) -> Any:
     return kind(**{k: tuple(v) if k in tuple_fields else v for k, v in values.items()})
 
 
-# CPU-feasible deviation from the paper (used for the committed checkpoints, see
-# agents/checkpoints/README.md): on a shared 2-core CPU one GA-SAC update of the paper-size model
-# (5 × 128 GNN, 2 × 512 heads, batch 64, n = 7) takes ~16 s, so the paper's 10,000-frame warm-up
-# and 30,000-transition buffer cannot be reached in ~40 min. Every width is divided by ~4, the
-# GNN has 3 layers (actor) / 2 (critic), the minibatch is 32 and the warm-up / buffer are scaled
-# to the ~10–25k frames such a run can collect. γ and the entropy targets stay the paper's /
-# defaults. Such a run makes only ~10³ updates, so the rates are raised where the paper's values
-# cannot act within 10³ steps (measured, agents/checkpoints/README.md "Diagnosis"):
-# * critic_lr 3e-4 (paper 3e-5) and tau 5e-3 (paper 1e-3): with 1e-3 the target critic covers
-#   only ~1 − e^{−0.7} ≈ 50 % of the way to the online critic in 700 updates;
-# * alpha_lr 3e-3: at 3e-4 log α can move by at most ~0.2 in 700 Adam steps, i.e. the automatic
-#   temperatures stay at their initial values;
-# * gate_l1 1e-5 (default 1e-3): with 1e-3 the penalty's constant gradient dominates the actor's
-#   noisy Q-gradient on the gate parameters under Adam and shut every gate (mean z 0.86 → 0.01
-#   in 300 updates); with 1e-5 the gates stay open (0.8–0.9) unless the critic says otherwise;
-# * 16 updates per 128-frame batch (8 envs): updates, not frames, are the scarce resource;
-# * gamma 0.9 (paper 0.99) and 256 critic-only updates first: with γ = 0.99 the TD target is
-#   mostly the bootstrapped value of ~95 future steps, and after 656 updates the critic's Q still
-#   did not depend on the correction (std of Q over corrections 0.04 vs 3.3 for the true scaled
-#   immediate reward) while the actor, following it, drifted to a policy 3.7 % worse than the
-#   no-op on held-out F (n = 3, 6,144 frames). Each step's reward telescopes to the episode's
-#   error reduction, so a shorter horizon keeps the objective's direction. Measured afterwards
-#   (the committed runs): it did not help — the critic stayed insensitive to the correction and
-#   the drift came later but went further (−14.5 % at 6,144 frames, −15.1 % at 12,288).
+# CPU-feasible deviation from the paper (the committed checkpoints): widths ÷ ~4, a 3/2-layer
+# GNN, minibatch 32, warm-up and buffer at the ~10–25k frames a CPU run collects, and the rates a
+# run of ~10³ updates needs. Each value's reason and measurement: docs/training.md, "Why the CPU
+# presets' values".
 CPU_SMALL = TrainConfig(
     model=ModelConfig(
         hidden=32,
@@ -522,17 +502,9 @@ CPU_IMITATION_ROBUST = TrainConfig(
     task=CPU_IMITATION.task,
     imitation=dataclasses.replace(CPU_IMITATION.imitation, gate_weight=1.0),
 )
-# The issue-26 recipe (docs/training.md): cpu-imitation (clean problems) with a correction head
-# that reads the base step it corrects (ModelConfig.base_features) and learns its Gaussian by
-# likelihood, then a GA-SAC fine-tuning on the local F with the executed correction in the critic.
-# The fine-tuning: the local F as reward without the terminal bonus, normalised by the warm-up
-# rewards' spread (MSE critic), the start policy's own correction entropy as target, a critic
-# warm-up until its held-out TD error stops falling (at most 256 updates), and a KL anchor to the
-# imitation actor held at weight 1 (decaying it to 0 over 256 actor updates, the first recipe, let
-# the correction's σ grow 20x and, on seed 1, the local F rise 1.5x within 50 updates of the
-# anchor's end: docs/training.md). 40 imitation
-# episodes (β₀·0.8⁴⁰ ≈ 10⁻⁴: the learner's own states by the end) fit the 60-min budget per seed
-# with three seeds sharing the two cores.
+# The cpu-residual recipe: cpu-imitation (clean problems) with a correction head that reads the
+# base step it corrects, then GA-SAC on the local F anchored to the imitation actor. Each choice
+# and its measurement: docs/training.md, "Why the CPU presets' values".
 CPU_RESIDUAL = dataclasses.replace(
     CPU_IMITATION,
     model=dataclasses.replace(CPU_IMITATION.model, base_features=True),

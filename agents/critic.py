@@ -10,26 +10,13 @@ vectors are concatenated (the paper's joint input). Each twin head is one MLP sh
 Q_i = MLP([x_i ‖ x_1 ‖ … ‖ x_n]) (projection to 512, then (512, 256) → 1), a MAAC-style
 Q_i(s, a_1..a_n) read against agent i's own reward.
 
-Agent i's own features come first, at the same place for every agent. The earlier head (one MLP
-from the concatenation to n outputs, output i = Q_i) had to find agent i's correction at a
-different input position for each output, with no weight shared between them. Trained as a
-plain regressor on the exact immediate reward (γ = 0, 300 steps, cpu-small sizes, n = 3), its
-Q varied by 0.03 across corrections of the same state against 1.37 for the true scaled reward,
-with a within-state correlation of −0.003; a per-agent MLP on the correction features alone
-reached 0.73.
-
-`own_action_only` (the actor loss) feeds Q_i agent i's features live and every other agent's
-detached, so that agent j's action is moved only by its own Q_j: Q_i does depend on a_j through
-the joint input, but agent j's correction does not change agent i's reward, and with the
-cross terms live each correction received n − 1 of them (measured: |∂Q_i/∂δ_j| as large as
-|∂Q_i/∂δ_i|, 0.05 vs 0.03), i.e. mostly noise.
-
+Agent i's own features come first, at the same place for every agent. `own_action_only` (the
+actor loss) feeds Q_i agent i's features live and every other agent's detached, so that agent
+j's action is moved only by its own Q_j (agent j's correction does not change agent i's reward).
 symlog(r_pq + Δ) is the chosen edge's residual after the correction (exact: the environment
-moves the head by Δ in the tail's frame). Without it the critic must learn the product-like
-interaction of r and Δ inside one MLP over n concatenated agents; after 430 updates of the
-cpu-small run it had not (measured: Q changed by 0.003 between Δ = 0 and a random Δ whose true
-scaled immediate reward differed by −1.7, correlation 0.02; agents/checkpoints/README.md). The
-feature is the action's known effect on the edge, not the value of that effect.
+moves the head by Δ in the tail's frame): the action's known effect on the edge, not the value of
+that effect. Why each input is there, with its measurements: docs/training.md, "The critic's
+inputs".
 
 The critic is built for a fixed team size n (training only); actors replicate to any n. The two
 twin heads share the GNN trunk (one graph pass per batch); the heads themselves are independent.

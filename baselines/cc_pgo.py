@@ -9,15 +9,8 @@ SE-Sync's SVD rounding by default, dpgo's anchor rounding with ``rounding="ancho
 (``problem.graph.robots``). One iteration = one colour class of non-adjacent robots updating in
 parallel (see :mod:`baselines.rbcd`).
 
-Known property (measured, benchmarks/bench_rbcd.py): with 35 robots the fixed restart limits the
-acceleration, and 1000 rounds from the chordal start end 3.7e-3 (mit) and 1.4e-3 (m3500) above
-the certified optimum. The local solves are not the cause (dpgo's 3 RTR steps × 50 tCG give
-3.6e-3 on mit and 1.36e-3 on m3500; near-exact local solves 3.4e-3 on mit), nor is the greedy
-selection (round-robin 3.6e-3 on mit; greedy selection at ``X`` instead of the extrapolated ``Y``
-3.67e-3, as at ``Y``), nor the restart round itself (a plain update from ``X`` with the momentum
-reset, which is what dpgo's restart does after discarding that iteration's
-accelerated step); plain RBCD ends at 8.4e-3 on mit, and the same partition with ML-PGO's
-adaptive restart at 4.0e-4 (mit) and 2.4e-4 (m3500). No parameter is tuned for it.
+Known property: with 35 robots the fixed restart limits the acceleration (measured, and the
+causes ruled out: docs/rbcd.md, "cc-pgo's fixed restart with many robots").
 """
 
 from __future__ import annotations

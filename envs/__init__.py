@@ -20,8 +20,7 @@ exact local-graph maxima; for the synthetic generator, the maxima over :data:`PR
 fit raises a one-line :class:`popbench.errors.ValueRangeError` naming the option to raise.
 
 torchrl and pettingzoo are imported only when an env is made. On a small shared CPU, prefer
-``torch.set_num_threads(1)``: the env's tensors are small, and parallel kernels that wait for
-descheduled threads made a step 10–40× slower in benchmarks/bench_env.py.
+``torch.set_num_threads(1)``: the env's tensors are small (measured: docs/environment.md).
 """
 
 from __future__ import annotations

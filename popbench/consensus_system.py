@@ -140,9 +140,9 @@ class _TeamSystem:
     two robots; tested), assembled into a CSC pattern fixed once (per-edge 3×3 blocks scattered to
     precomputed slots), with each robot's unknowns contiguous and in a METIS nested-dissection
     order of its local graph. Each robot still pending a step gets its own block (a CSC slice)
-    factorised by SuperLU in that order with diagonal pivots — on city10k at n = 7 ≈ 3× faster
-    than SuperLU's default column order (measured), so each robot's damping and step acceptance
-    stay its own. Timings and the variants not kept: docs/consensus.md.
+    factorised by :func:`popbench.sparse.spd_lu` in that order (measured: docs/sparse.md), so each
+    robot's damping and step acceptance stay its own. Timings and the variants not kept:
+    docs/consensus.md.
     """
 
     def __init__(self, team: _Team) -> None:

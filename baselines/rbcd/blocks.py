@@ -128,10 +128,8 @@ def batch_groups(members: np.ndarray, sizes: np.ndarray, batch_below: int) -> li
     ``batch_below`` poses (``sizes`` ``(n,)`` poses per robot) alone, the smaller ones together.
 
     Batching removes per-robot overhead but makes every batched robot pay for the slowest one's
-    tCG iterations on the whole batch's arrays; measured on m3500 (300 rounds, same machine):
-    7 robots of ~500 poses ran 10 % faster one by one, 35 robots of ~100 poses 25 % faster
-    batched; on city10k 35 robots of ~285 poses ran as fast either way. The results agree up to
-    floating-point summation order.
+    tCG iterations on the whole batch's arrays (measured: docs/rbcd.md, "Batching"). The results
+    agree up to floating-point summation order.
 
     **Batched:** the robots of a class share no edge, so their
     problems are independent and are solved together as one block-diagonal problem (one ``Q_cc``

@@ -33,9 +33,8 @@ MAX_REJECTIONS = 10  # trust-region rejections allowed in one robot update (dpgo
 class LocalOptions:
     """Riemannian trust-region settings of one robot update (dpgo ``ROptParameters``).
 
-    The defaults (1 accepted step, ≤ 10 tCG iterations) are cheaper than dpgo's (3, 50) and, on
-    m3500 with 7 robots, reached 1e-3 of the optimum in as many rounds (58 vs 55 with adaptive
-    restart, 115 vs 112 with the fixed one) in ~60 % of the time (benchmarks/bench_rbcd.py).
+    The defaults (1 accepted step, ≤ 10 tCG iterations) are cheaper than dpgo's (3, 50) and
+    converge in as many rounds (measured: docs/rbcd.md, "Local solver settings").
 
     Attributes:
         rtr_iterations: accepted trust-region steps per update (dpgo 3).
@@ -45,10 +44,9 @@ class LocalOptions:
             smaller (:func:`scaled_local_options`).
         relative_gradient_tolerance: the scale-aware bound above: residuals ``s×`` smaller give
             gradients ``s×`` smaller, and with the absolute 1e-2 alone every robot stopped
-            updating on a graph of tiny residuals (``docs/rbcd.md``). 2e-3 keeps 1e-2 on every
-            Table I start (the smallest start gradient, csail chordal, is 5.45).
-        preconditioner_shift: ``λ`` of the preconditioner ``Q_αα + λI`` (dpgo 0.1; on m3500
-            with 7 robots 1e-3 and 1e-5 converged no faster per round).
+            updating on a graph of tiny residuals (``docs/rbcd.md``); 2e-3 keeps 1e-2 on every
+            Table I start.
+        preconditioner_shift: ``λ`` of the preconditioner ``Q_αα + λI`` (dpgo 0.1).
     """
 
     rtr_iterations: int = 1

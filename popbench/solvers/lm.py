@@ -11,10 +11,8 @@ is held fixed (gauge): its three columns are removed from ``J``. A step is accep
 lowers the cost; λ then follows Nielsen's rule ``λ ← λ · max(1/10, 1 − (2ρ − 1)³)`` with the
 gain ratio ``ρ = (F − F_new) / L(δ)`` and the model decrease ``L(δ) = −gᵀδ + λ δᵀDδ``; a
 rejected step multiplies λ by ``ν`` and doubles ``ν`` (reset to 2 on acceptance). λ starts at
-1e-8 (nearly Gauss–Newton); Nielsen's shrink floor is 1/10 instead of his 1/3. Both choices
-were measured on every dataset (fewer steps from chordal starts, e.g. M3500 4 instead of 12,
-same minima); pose graphs have very soft low-frequency modes that a larger damping slows down.
-Headings are wrapped to ``[-π, π)`` after each step.
+1e-8 (nearly Gauss–Newton); Nielsen's shrink floor is 1/10 instead of his 1/3 (both measured:
+docs/lm.md). Headings are wrapped to ``[-π, π)`` after each step.
 
 One *iteration* is one LM step, accepted or rejected (each costs one factorisation).
 
@@ -27,14 +25,13 @@ only confirm convergence is then not factorised.
 
 Sparse linear algebra: ``H``'s block pattern depends only on the edge list, so the CSC structure,
 the map from every per-edge 3×3 block entry to its CSC slot, and a fill-reducing order are built
-once per graph. The order is METIS nested dissection (pymetis) of the pose graph, expanded to the
-three coordinates of each pose: on City10000 its LU is ≈ 5 % sparser and ≈ 35 % faster than
-SuperLU's own MMD(AᵀA + A) order (measured). Each iteration scatters the block values with
-``np.bincount`` and runs SuperLU in the natural order with diagonal pivots (``H + λD`` is SPD).
+once per graph. The order is METIS nested dissection of the pose graph, expanded to the three
+coordinates of each pose; each iteration scatters the block values with ``np.bincount`` and
+factorises ``H + λD`` (SPD) by :func:`popbench.sparse.spd_lu` (measured: docs/sparse.md).
 
 ``rotation_cost="chordal"`` minimises ``F_chordal`` instead (SE-Sync's cost, rotation residual
 ``4κ(1 − cos r_θ)``): its landscape differs, and on high-noise graphs LM on ``F_chordal`` followed
-by LM on ``F`` reaches a much lower minimum of ``F`` than LM on ``F`` directly (M3500c, measured).
+by LM on ``F`` can reach a much lower minimum of ``F`` than LM on ``F`` directly (docs/lm.md).
 :func:`reference_optimum` therefore keeps the better of both paths from the chordal start.
 """
 
@@ -361,10 +358,8 @@ def solve(
         problem: the problem; LM starts from its start, ``problem.graph.poses``.
         budget: ``iterations`` LM steps (accepted or rejected; default 1000) and an optional
             wall-clock cap.
-        chordal_stage: first minimise ``F_chordal``, then ``F`` (both share the budget). On by
-            default: measured from the chordal start on the eight Table I datasets, it reaches
-            the same F* on seven and a lower minimum on m3500c (2580.45 vs 4071.18), in fewer
-            steps there; ``-o chordal_stage=false`` gives plain LM on ``F``.
+        chordal_stage: first minimise ``F_chordal``, then ``F`` (both share the budget); on by
+            default (measured: docs/lm.md); ``-o chordal_stage=false`` gives plain LM on ``F``.
         relative_tolerance, gradient_tolerance: stopping tests of :func:`solve_graph`.
         objective: the cost minimised, ``"F"`` (eq. 1; the tables) or ``"chi2"`` (g2o's, with
             each edge's full information; ``popbench solve``'s default). docs/solve.md.
