@@ -21,6 +21,12 @@ fit raises a one-line :class:`popbench.errors.ValueRangeError` naming the option
 
 torchrl and pettingzoo are imported only when an env is made. On a small shared CPU, prefer
 ``torch.set_num_threads(1)``: the env's tensors are small (measured: docs/environment.md).
+
+Example:
+    >>> from envs import make_torchrl_env
+    >>> env = make_torchrl_env(robots=3, batch_size=2, poses_per_robot=10, seed=0)
+    >>> env.rollout(3).batch_size  # 2 problems, 3 steps of random actions
+    torch.Size([2, 3])
 """
 
 from __future__ import annotations

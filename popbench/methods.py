@@ -16,6 +16,15 @@ given — on F (eq. 1), or on the cost it minimised where that is chi2 or a robu
 ``extras["never_worse"]``. On a problem with injected outliers the rule is not applied;
 docs/never_worse.md has the choice. The wrapper also gives every Result its ``status`` and holds
 the graph's ``FIX`` poses (:func:`hold_fixed`).
+
+Example:
+    >>> from popbench.methods import Budget, get_method
+    >>> from popbench.objective import evaluate
+    >>> from popbench.synthetic import make_problem
+    >>> problem = make_problem(robots=3, poses_per_robot=20, seed=0)
+    >>> result = get_method("lm")(problem, Budget(iterations=20))
+    >>> bool(result.F < evaluate(problem.graph, problem.graph.poses).F)
+    True
 """
 
 from __future__ import annotations

@@ -16,6 +16,14 @@ with ``κ = Λ_θθ`` and ``τ = 2 / tr(Λ_tt⁻¹)`` (SE-Sync / DPGO / MM-PGO w
 ``chi2`` with each information replaced by ``diag(τ, τ, κ)``; :func:`anisotropy` measures how far
 a file's information is from that (docs/solve.md). :func:`linearisation` and :func:`gradient`
 serve each of the three costs (:data:`COSTS`).
+
+Example:
+    >>> from popbench.objective import evaluate
+    >>> from popbench.synthetic import make_problem
+    >>> graph = make_problem(robots=2, poses_per_robot=10, seed=0).graph
+    >>> costs = evaluate(graph)  # at graph.poses, the odometry start
+    >>> bool(costs.F > evaluate(graph, graph.ground_truth).F > 0)
+    True
 """
 
 from __future__ import annotations

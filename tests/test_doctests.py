@@ -8,7 +8,10 @@ import importlib
 import pytest
 
 ENTRY_POINTS = (
+    "popbench.methods",
+    "popbench.objective",
     "popbench.sparse",
+    "envs",
     "baselines.rbcd.relaxation",
     "baselines.rbcd.driver",
     "baselines.mm_pgo.driver",
