@@ -92,13 +92,6 @@ def checkpoint_algorithm(path: str | Path) -> str:
 ACTOR_KEYS = ("config", "dims", "actor", "frames", "updates")
 
 
-def export_actor(run_checkpoint: str | Path, path: str | Path) -> Path:
-    """Write the actor-only part of a training checkpoint (ACTOR_KEYS): what `load_actor`
-    needs, without critic and optimiser state."""
-    state = read_checkpoint(run_checkpoint)
-    return save_checkpoint(path, {key: state[key] for key in ACTOR_KEYS})
-
-
 def save_snapshot(out_dir: str | Path, state: dict[str, Any]) -> Path:
     """Write the actor-only part of a training state as `out_dir/snapshots/actor-FRAMES.pt`
     (FRAMES zero-padded to 7 digits): the actor as it was after that many frames, which

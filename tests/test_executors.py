@@ -222,11 +222,25 @@ def test_run_jobs_flag_reaches_the_manifest_and_bad_flags_fail_first(tmp_path, c
         assert message in capsys.readouterr().err
 
 
-def test_solve_threads_flag(tmp_path, capsys):
+def test_solve_threads_flag(tmp_path, capsys, monkeypatch):
+    """--threads reaches the thread limit around the solve, and does not change the result."""
     from conftest import ring_g2o
 
+    from popbench import threads
     from popbench.cli import main
 
+    limits = []
+    limited = threads.limited_threads
+
+    def spy(count: int):
+        limits.append(count)
+        return limited(count)
+
+    monkeypatch.setattr(threads, "limited_threads", spy)
     graph = ring_g2o(tmp_path / "ring.g2o")
-    assert main(["solve", str(graph), "--threads", "2", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["F"] >= 0
+    values = []
+    for count in ("2", "1"):
+        assert main(["solve", str(graph), "--threads", count, "--json"]) == 0
+        values.append(json.loads(capsys.readouterr().out)["F"])
+    assert limits == [2, 1]
+    assert values[0] == values[1]

@@ -134,20 +134,33 @@ def test_a_registered_toy_method_solves_from_the_command_line(toy, tmp_path, cap
     assert '"method": "toy"' in capsys.readouterr().out
 
 
-def test_the_registered_records_say_what_table_i_and_table_ii_read() -> None:
-    # Table I's defaults: the registered methods that are not centralised, local-lm included
-    assert Table1Config().methods == (
-        "cc-pgo",
-        "ml-pgo",
-        "mm-pgo",
-        "prop-v1",
-        "prop-v2",
-        "local-lm",
-        "prop-v1+mm-pgo",
-        "local-lm+mm-pgo",
-    )
-    gnc, local = methods.method_record("gnc"), methods.method_record("local-lm")
-    assert gnc.centralised and gnc.has_inlier_mask and gnc.label == "GNC"
-    assert not local.centralised and not local.learned and local.label == "local-lm"
-    assert methods.get_method("local-lm").__module__ == "popbench.solvers.local_lm"
-    assert "consensus" in methods.method_options("local-lm")
+def test_table_i_and_table_ii_follow_the_records(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A record decides where its method runs: a distributed one joins Table I's defaults, a
+    centralised one does not; one with an inlier mask joins Table II's methods."""
+    from popbench.harness.outliers import OutliersConfig
+
+    before = Table1Config().methods
+    assert before and not any(methods.method_record(name).centralised for name in before)
+    for name, centralised in (("toy-distributed", False), ("toy-centralised", True)):
+        record = methods.MethodRecord(
+            name, "test_registry:solve_toy", name, centralised=centralised
+        )
+        monkeypatch.setitem(methods.METHODS, name, record)
+    assert Table1Config().methods == (*before, "toy-distributed")
+    for name in OutliersConfig().methods:
+        assert methods.method_record(name).has_inlier_mask, f"{name} cannot score outliers"
+
+
+@pytest.mark.parametrize("name", sorted(methods.METHODS))
+def test_every_record_names_what_exists(name: str) -> None:
+    """Each record's solve function and options class import, its options are unique and its
+    checkpoints (learned methods) are files: a typo in a record fails here, not in a table run."""
+    record = methods.method_record(name)
+    assert callable(methods.get_method(name))
+    options = methods.method_options(name)
+    assert len(set(options)) == len(options), f"{name} declares an option twice: {options}"
+    assert record.refines is None or record.refines in methods.METHODS
+    for seed in record.training_seeds:
+        path = record.checkpoint_path(seed)
+        assert path is not None and path.is_file(), f"{name}: no actor of training seed {seed}"
+    assert record.learned == (record.checkpoint is not None)

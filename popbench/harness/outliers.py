@@ -57,7 +57,6 @@ from popbench.outliers import (
 )
 
 DATASETS = ("intel", "mit", "csail")
-RATES = (0.025, 0.05, 0.1)
 METHODS = ("prop-v1", "mm-pgo", "gnc")  # the paper's Table II and GNC
 MASK = "mask"  # the model of a dataset whose false loop closures a mask file names
 
