@@ -92,6 +92,19 @@ def checkpoint_algorithm(path: str | Path) -> str:
 ACTOR_KEYS = ("config", "dims", "actor", "frames", "updates")
 
 
+def save_actor(
+    path: str | Path,
+    config: TrainConfig,
+    dims: dict[str, int],
+    actor: torch.nn.Module,
+    frames: int = 0,
+    updates: int = 0,
+) -> Path:
+    """Write an actor-only checkpoint (:data:`ACTOR_KEYS`): what :func:`load_actor` needs."""
+    state = {"config": config.to_dict(), "dims": dims, "actor": actor.state_dict()}
+    return save_checkpoint(path, {**state, "frames": frames, "updates": updates})
+
+
 def save_snapshot(out_dir: str | Path, state: dict[str, Any]) -> Path:
     """Write the actor-only part of a training state as `out_dir/snapshots/actor-FRAMES.pt`
     (FRAMES zero-padded to 7 digits): the actor as it was after that many frames, which

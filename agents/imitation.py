@@ -200,7 +200,7 @@ def run_phase(session, out_dir: Path) -> None:  # noqa: ANN001 - agents.session.
     every episode in ``out_dir/imitation.pt``, one line per episode in ``imitation.csv``, and,
     once finished, the imitation-only actor in ``imitation-actor.pt`` (what the held-out
     evaluation's "imitation" row loads). A finished phase only reloads its actor."""
-    from agents.checkpoint import read_checkpoint, save_checkpoint
+    from agents.checkpoint import read_checkpoint, save_actor, save_checkpoint
 
     config = session.config
     path, metrics = out_dir / IMITATION_CHECKPOINT, out_dir / IMITATION_METRICS
@@ -250,8 +250,7 @@ def run_phase(session, out_dir: Path) -> None:  # noqa: ANN001 - agents.session.
         optimiser=optimiser,
     )
     save(config.imitation.episodes, True)
-    keep = {"config": config.to_dict(), "dims": session.dims, "frames": 0, "updates": 0}
-    save_checkpoint(out_dir / IMITATION_ACTOR, {**keep, "actor": session.actor.state_dict()})
+    save_actor(out_dir / IMITATION_ACTOR, config, session.dims, session.actor)
 
 
 def start_from_actor(session, path: Path, out_dir: Path) -> None:  # noqa: ANN001 - Session
@@ -259,7 +258,7 @@ def start_from_actor(session, path: Path, out_dir: Path) -> None:  # noqa: ANN00
     the imitation phase, and write it as the run's ``imitation-actor.pt`` (the held-out
     "imitation" row's actor). The checkpoint's model (but its action bound, which the
     environment sets) and task must be the run's: a one-line `CheckpointError` otherwise."""
-    from agents.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
+    from agents.checkpoint import CheckpointError, read_checkpoint, save_actor
 
     state = read_checkpoint(path, session.config.experiment.device)
     stored = TrainConfig.from_dict(state["config"])
@@ -277,5 +276,4 @@ def start_from_actor(session, path: Path, out_dir: Path) -> None:  # noqa: ANN00
         what = ", ".join(differing) or "the environment's dimensions"
         raise CheckpointError(f"{path}: the actor was trained with another {what} than this run")
     session.actor.load_state_dict(state["actor"])
-    keep = {"config": session.config.to_dict(), "dims": session.dims, "frames": 0, "updates": 0}
-    save_checkpoint(out_dir / IMITATION_ACTOR, {**keep, "actor": session.actor.state_dict()})
+    save_actor(out_dir / IMITATION_ACTOR, session.config, session.dims, session.actor)

@@ -42,12 +42,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from popbench.choices import ROBUST_KERNELS
 from popbench.errors import ValueRangeError
+from popbench.objective import CHI2_3_99
 
-KERNELS = ("none", "huber", "gm", "welsch")
+KERNELS = ("none", *ROBUST_KERNELS)
 
-# χ²₃ quantile at 0.99 (scipy.stats.chi2.ppf(0.99, 3)), see the module docstring.
-DEFAULT_SCALE = 11.344866730144373
+DEFAULT_SCALE = CHI2_3_99  # χ²₃(0.99), see the module docstring
 AUTHORS_SCALE = 0.25  # MM-PGO's loss_reg in examples/dist_pgo.cpp (its default is 1.0)
 # 0.99 quantile of χ²₂ + 2χ²₁ (P(X₂ + 2X₁ > t) = 0.01 by quadrature), see the module docstring.
 INLIER_BOUND = 16.30391385410364

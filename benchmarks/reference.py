@@ -15,12 +15,10 @@ from popbench import datasets
 from popbench.distributed import DistributedProblem
 from popbench.initial import with_start
 
-PUBLISHED_OPTIMA = {  # F_chordal*, SE-Sync convention (REFERENCES §6.2, certified or recomputed)
-    "intel": 393.6525,
-    "mit": 61.1541,
-    "csail": 31.7037,
-    "m3500": 193.8623,
-    "city10k": 638.6246,
+PUBLISHED_OPTIMA = {  # F_chordal*, SE-Sync convention (popbench.datasets.Dataset.chordal_optimum)
+    name: entry.chordal_optimum
+    for name, entry in datasets.DATASETS.items()
+    if entry.chordal_optimum is not None
 }
 
 TOLERANCE = 1e-3  # a relative gap to the optimum that counts as converged

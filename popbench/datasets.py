@@ -58,6 +58,10 @@ class Dataset:
         alias_of: the registered name this entry duplicates, or None.
         packaged: ``(package, path inside it)`` of an installed Python package that ships the
             same bytes, searched after the data folders, or None.
+        chordal_optimum: ``F_chordal*`` (SE-Sync's convention) of the file: SE-Sync's certified
+            optimum (Rosen et al. 2019, Table 1) or centralised LM's from the chordal start, which
+            reproduces every certified value; the floor of the baselines' benchmarks and tests.
+            None: not recorded.
         shared_copy: whether the team's data folder (``shared/datasets``, POPBENCH_DATA in the
             tests and CI, which have no network) holds the file. A record with neither a shared
             copy nor ``packaged`` is not expected offline: the tests skip it, naming it, when
@@ -74,6 +78,7 @@ class Dataset:
     ground_truth: str | None = None
     alias_of: str | None = None
     packaged: tuple[str, str] | None = None
+    chordal_optimum: float | None = None
     shared_copy: bool = True
 
 
@@ -108,6 +113,7 @@ _ENTRIES = [
         1228,
         1483,
         "Intel Research Lab (Carlone's g2o version), real data",
+        chordal_optimum=393.6525,
     ),
     Dataset(
         "mit",
@@ -117,6 +123,7 @@ _ENTRIES = [
         808,
         827,
         "MIT Killian Court (MITb), real data; 20 loop closures written i > j",
+        chordal_optimum=61.1541,
     ),
     Dataset(
         "csail",
@@ -126,6 +133,7 @@ _ENTRIES = [
         1045,
         1172,
         "CSAIL (SE-Sync's g2o form of Carlone's TORO file), real data; edges only",
+        chordal_optimum=31.7037,
     ),
     Dataset(
         "m3500",
@@ -135,6 +143,7 @@ _ENTRIES = [
         3500,
         5453,
         "M3500 (Olson's simulated Manhattan world, Carlone's g2o version)",
+        chordal_optimum=193.8623,
         ground_truth="m3500_gt",
     ),
     Dataset(
@@ -176,6 +185,7 @@ _ENTRIES = [
         20687,
         "City10000 (Kaess, iSAM), simulated",
         ground_truth="city10k_gt",
+        chordal_optimum=638.6246,
     ),
     dataclasses.replace(
         _GRID_LEVELS[GRID1000_DEFAULT_LEVEL - 1],

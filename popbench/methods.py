@@ -107,6 +107,14 @@ class Result:
     history_objective: str = "F"
     status: Status | None = None
 
+    def summary(self) -> dict[str, float | int]:
+        """The scalar outcome every table row and ``popbench solve --json`` report, as plain
+        Python numbers: F, F_chordal, chi2, wall_s, parallel_s, iterations, messages."""
+        costs = {name: float(getattr(self, name)) for name in ("F", "F_chordal", "chi2")}
+        times = {"wall_s": float(self.wall_s), "parallel_s": float(self.parallel_s)}
+        counts = {"iterations": int(self.iterations), "messages": int(self.messages)}
+        return {**costs, **times, **counts}
+
 
 Method = Callable[..., Result]
 

@@ -35,6 +35,11 @@ import numpy as np
 from popbench import se2
 from popbench.graph import PoseGraph
 
+# χ²₃(0.99) = scipy.stats.chi2.ppf(0.99, 3): the 0.99-quantile of an edge's eq. 1 term ‖e‖² (three
+# whitened coordinates) when its noise matches its information; the inlier bound of GNC and the
+# project's robust-kernel scale.
+CHI2_3_99 = 11.344866730144373
+
 # J = R(π/2); dR(θ)/dθ = R(θ) J.
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])
 

@@ -17,10 +17,11 @@ from typing import NamedTuple
 import numpy as np
 import pymetis
 
+from popbench.choices import PARTITIONS
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.graph import PoseGraph, robot_kinds
 
-METHODS = ("metis", "contiguous")
+METHODS = PARTITIONS
 
 
 def check_robots(robots: int, num_poses: int) -> int:

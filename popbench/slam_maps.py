@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from popbench import se2
+from popbench.choices import SLAM_LEVEL
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph
@@ -44,7 +45,7 @@ TRANSLATION_SIGMA = (0.01, 0.5)  # [m per m] odometry σ_t (grid1000_2 0.010 …
 ANISOTROPY = (1.0, 5.0)  # σ_x / σ_y (or its inverse) of one edge
 LOOP_FACTOR = (0.5, 3.0)  # loop closure σ / odometry σ (datasets 0.5 … 2.5)
 EDGE_JITTER = (0.0, 1.0)  # j: each edge's σ times 2^U(−j, j)
-LEVEL = "SLAM"  # the noise-level name under which popbench.synthetic.make_problem draws these
+LEVEL = SLAM_LEVEL  # the noise-level name under which popbench.synthetic.make_problem draws these
 MIN_LOOP_GAP = 10  # a revisit is at least this many steps after the earlier visit
 
 

@@ -33,17 +33,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from popbench import se2, slam_maps
+from popbench.choices import NOISE_LEVELS
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph, odometry_composition, robot_kinds
 from popbench.initial import with_start
 
-# σ (odometry, intra-robot loop, inter-robot relative and loop), same units on x, y [m], θ [rad].
-NOISE_LEVELS: dict[str, tuple[float, float, float]] = {
-    "V1": (0.06, 0.10, 0.14),
-    "V2": (0.10, 0.14, 0.18),
-    "V3": (0.14, 0.18, 0.22),
-}
 MIN_LOOP_GAP = 5  # intra-robot loop closures join poses at least this many steps apart
 STEP_LENGTH = 1.0  # [m]
 TURN_PROBABILITIES = (0.25, 0.5, 0.25)  # turn −90°, straight, +90°

@@ -20,13 +20,14 @@ from baselines.rbcd import (
     rounding as rbcd_rounding,
 )
 from popbench import objective, se2
+from popbench.datasets import DATASETS
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.partition import partition, partition_report
 
-MIT_OPTIMUM = 61.1541  # F_chordal*, SE-Sync convention (REFERENCES §6.2)
+MIT_OPTIMUM = DATASETS["mit"].chordal_optimum  # F_chordal*, SE-Sync convention
 
 
 def _random_point(rng: np.random.Generator, num_poses: int, rank: int) -> np.ndarray:

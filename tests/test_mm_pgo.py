@@ -11,6 +11,7 @@ from baselines import mm_pgo, robust
 from baselines.mm_pgo import driver, edges, restart
 from baselines.mm_pgo.team import TeamSystem
 from popbench import objective, se2
+from popbench.datasets import DATASETS
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, make_graph
@@ -18,7 +19,7 @@ from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.outliers import candidate_mask, precision_recall
 
-MIT_OPTIMUM = 61.1541  # SE-Sync-convention F_chordal* (REFERENCES §6.2)
+MIT_OPTIMUM = DATASETS["mit"].chordal_optimum  # SE-Sync-convention F_chordal*
 
 
 def _split(graph, robots: int) -> DistributedProblem:

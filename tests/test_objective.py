@@ -92,3 +92,11 @@ def test_chordal_and_geodesic_agree_to_fourth_order_in_the_rotation_residual(sma
     gap = f + kappa_r2 - f_chordal
     assert (1.0 - r_max**2 / 30.0) * kappa_r4 / 6.0 <= gap <= kappa_r4 / 6.0
     assert gap < 1e-3 * f_chordal  # so the agreement is close on this graph
+
+
+def test_the_inlier_bound_is_the_chi2_quantile() -> None:
+    from scipy.stats import chi2
+
+    from popbench.objective import CHI2_3_99
+
+    assert CHI2_3_99 == pytest.approx(chi2.ppf(0.99, 3), rel=1e-14)

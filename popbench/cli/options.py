@@ -28,9 +28,6 @@ from popbench.harness.executors import (
     Run,
 )
 
-PARTITIONS = ("metis", "contiguous")
-ROBUST_KERNELS = ("huber", "gm", "welsch")
-
 CACHE_HELP = (
     "Cache: finished cells are kept in OUT/cells/ (one JSON file each), so an interrupted run "
     "resumes where it stopped. A cell is reused only if its options, the sha256 of its graph "

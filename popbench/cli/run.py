@@ -19,6 +19,7 @@ from typing import Any
 
 import typer
 
+from popbench.choices import NOISES, PARTITIONS, ROBUST_KERNELS
 from popbench.cli import options
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness.executors import Run
@@ -109,7 +110,7 @@ def table1_command(
         "seeds": options.integers(seeds, "seed", 0),
         "training_seeds": options.integers(training_seeds, "training seed", 0),
         "init": options.start(init),
-        "partition": options.names(partition, options.PARTITIONS, "partition")[0],
+        "partition": options.names(partition, PARTITIONS, "partition")[0],
     }
     if methods is not None:
         settings["methods"] = options.methods(methods)
@@ -208,9 +209,7 @@ def outliers_command(
         seeds=options.integers(seeds, "seed", 0),
         iterations=iterations,
         init=options.start(init),
-        kernel=None
-        if kernel is None
-        else options.names(kernel, options.ROBUST_KERNELS, "kernel")[0],
+        kernel=None if kernel is None else options.names(kernel, ROBUST_KERNELS, "kernel")[0],
         candidates=options.names(candidates, tuple(CANDIDATE_SETS), "candidates")[0],
         model=model,
         group_size=group_size or DEFAULT_GROUP_SIZE,
@@ -255,7 +254,7 @@ def scalability_command(
     wrote(len(run_scalability(config, run)), "cells", config.out, files)
 
 
-HELDOUT_NOISE = ("V1", "V2", "V3", "SLAM")  # popbench.synthetic.make_problem
+HELDOUT_NOISE = NOISES  # the synthetic levels and the SLAM-shaped maps
 
 
 def keyword_options(text: str, option: str) -> dict[str, Any]:

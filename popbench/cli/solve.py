@@ -13,7 +13,8 @@ from typing import Annotated, Any
 
 import typer
 
-from popbench.cli.options import PARTITIONS, CommandThreads
+from popbench.choices import PARTITIONS
+from popbench.cli.options import CommandThreads
 from popbench.errors import PopbenchError, ValueRangeError
 
 
@@ -222,14 +223,8 @@ def solve_record(
         "poses": graph.num_poses,
         "edges": graph.num_edges,
         "F_init": costs.objective(graph, graph.poses),
-        "F": float(result.F),
-        "F_chordal": float(result.F_chordal),
-        "chi2": float(result.chi2),
-        "iterations": int(result.iterations),
-        "wall_s": float(result.wall_s),
-        "parallel_s": float(result.parallel_s),
+        **result.summary(),
         "history_length": len(result.history),
-        "messages": int(result.messages),
         "options": options,
         "objective": cost,
         "anisotropy": float(costs.anisotropy(graph.information).max(initial=1.0)),

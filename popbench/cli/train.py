@@ -12,6 +12,7 @@ from typing import Annotated
 
 import typer
 
+from popbench.choices import NOISES
 from popbench.cli.errors import Interrupted
 from popbench.cli.options import CommandThreads
 from popbench.errors import ValueRangeError
@@ -29,7 +30,7 @@ TRAINING = {
 }
 
 
-TRAIN_ENVS = ("V1", "V2", "V3", "SLAM")
+TRAIN_ENVS = NOISES
 TRAIN_DEVICES = ("cpu", "cuda")
 
 

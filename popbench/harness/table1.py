@@ -141,13 +141,7 @@ def cell_row(spec: Spec, problem: DistributedProblem, result: Result) -> dict[st
         "init": spec["init"],
         "seed": spec["seed"],
         "training_seed": spec.get("training_seed"),  # None: not a learned method
-        "F": result.F,
-        "F_chordal": result.F_chordal,
-        "chi2": result.chi2,
-        "wall_s": result.wall_s,
-        "parallel_s": result.parallel_s,
-        "iterations": result.iterations,
-        "messages": result.messages,
+        **result.summary(),
         # the convergence profile (popbench.harness.profiles.HISTORY_FIELDS)
         "history": result.history.tolist(),
         "history_s": None if result.history_s is None else result.history_s.tolist(),

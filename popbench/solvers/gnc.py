@@ -73,8 +73,7 @@ from popbench.status import Status, free_gradient_norm
 
 SURROGATES = ("tls", "gm")
 INNER_STARTS = ("best", "problem", "chordal")
-# χ²₃ quantile at 0.99 (scipy.stats.chi2.ppf(0.99, 3)), on ‖e‖² of eq. 1.
-THRESHOLD = 11.344866730144373
+THRESHOLD = objective.CHI2_3_99  # χ²₃(0.99), on ‖e‖² of eq. 1
 MU_STEP = 1.4
 COST_TOLERANCE = 1e-5
 # Relative cost decrease that ends an inner LM solve (GTSAM's LevenbergMarquardtParams default).

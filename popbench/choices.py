@@ -1,0 +1,23 @@
+"""The named choices that the command line checks before it imports anything heavy, each listed
+once: the modules that implement a choice import its list from here (no NumPy, so ``popbench
+--help`` stays fast).
+
+* :data:`NOISE_LEVELS` — the synthetic problems' noise levels (:mod:`popbench.synthetic`), and
+  :data:`NOISES` — those and :data:`SLAM_LEVEL`, the SLAM-shaped maps (:mod:`popbench.slam_maps`);
+* :data:`PARTITIONS` — how poses are split among robots (:mod:`popbench.partition`);
+* :data:`ROBUST_KERNELS` — the robust kernels of MM-PGO (:mod:`baselines.robust`), besides
+  ``"none"``.
+"""
+
+from __future__ import annotations
+
+# σ (odometry, intra-robot loop, inter-robot relative and loop), same units on x, y [m], θ [rad].
+NOISE_LEVELS: dict[str, tuple[float, float, float]] = {
+    "V1": (0.06, 0.10, 0.14),
+    "V2": (0.10, 0.14, 0.18),
+    "V3": (0.14, 0.18, 0.22),
+}
+SLAM_LEVEL = "SLAM"  # the level under which popbench.synthetic.make_problem draws SLAM maps
+NOISES = (*NOISE_LEVELS, SLAM_LEVEL)
+PARTITIONS = ("metis", "contiguous")
+ROBUST_KERNELS = ("huber", "gm", "welsch")
