@@ -343,7 +343,7 @@ class GASACLoss(LossModule):
           decaying linearly to 0 (AlgorithmConfig.anchor_weight / anchor_updates).
 
         They reach only the actor's parameters and do not depend on the critic, so they act
-        during the critic warm-up too (agents.trainer.optimise leaves out loss_actor only).
+        during the critic warm-up too (agents.gasac_trainer.optimise leaves out loss_actor only).
         Reward scale and target entropy are buffers: with AlgorithmConfig.auto_reward_scale /
         auto_delta_entropy the trainer sets them from the warm-up data (agents.trainer).
         """

@@ -117,9 +117,9 @@ def truncate_metrics(
 
 def plot_learning_curve(metrics_path: Path, stem: Path) -> list[Path]:
     """Episode return and held-out F reduction against frames, as ``stem.png`` and ``stem.pdf``
-    (popbench.harness.figures.plot_learning_curves); [] when no row has been logged."""
+    (popbench.plotting.plot_learning_curves); [] when no row has been logged."""
     from popbench.errors import ValueRangeError
-    from popbench.harness.figures import plot_learning_curves
+    from popbench.plotting import plot_learning_curves
 
     if not metrics_path.is_file():
         return []

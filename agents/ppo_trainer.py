@@ -4,8 +4,8 @@ The session (`build_ppo_session`) holds the training env of agents.session (the 
 reward and frames), the shared HybridActor behind `PPOPolicy` (agents.ppo_actor, its hybrid
 distribution in agents.hybrid_distribution), a `ValueOperator` (agents.value: centralised for
 "mappo", per robot for "ippo"), the loss and one Adam optimiser over actor and value function.
-`PPO` is its agents.trainer.Learner: agents.trainer.train runs it with the collector,
-checkpoints, metrics, held-out evaluation and resuming it runs GA-SAC with.
+`MAPPO` and `IPPO` are its agents.learner.Learner records: agents.trainer.train runs them with the
+collector, checkpoints, metrics, held-out evaluation and resuming it runs GA-SAC with.
 
 Per collected batch [num_envs, T] (`PPOBatches.learn`): rewards scaled by c (1 / std of the first
 batch's rewards, kept for the run), the root done flags expanded to the robots, V(s) and V(s')
@@ -16,6 +16,7 @@ then `epochs` passes of shuffled minibatches of `minibatch_size` joint transitio
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import torch
@@ -26,10 +27,10 @@ from torchrl.objectives.value import GAE
 
 from agents.actor import AGENTS, HybridActor
 from agents.config import TrainConfig
+from agents.learner import Learner
 from agents.metrics import PPO_METRIC_FIELDS
 from agents.ppo_actor import ACTION_KEY, SAMPLE_LOG_PROB_KEY, PPOPolicy
 from agents.session import training_env
-from agents.trainer import Learner
 from agents.value import VALUE_KEY, TeamValue, ValueOperator
 
 KEYS = {  # the explicit tensordict keys of ClipPPOLoss and GAE
@@ -63,8 +64,9 @@ class PPOSession:
     reward_scale: float = 0.0  # c, set on the first batch (0: not yet)
 
 
-def build_ppo_session(config: TrainConfig) -> PPOSession:
-    """The training env (+ recurrent-state primer), actor, value function, loss, GAE, optimiser."""
+def build_ppo_session(config: TrainConfig, central_value: bool) -> PPOSession:
+    """The training env (+ recurrent-state primer), actor, value function, loss, GAE, optimiser;
+    ``central_value``: MAPPO's value function of the whole team, else IPPO's per agent."""
     experiment, ppo = config.experiment, config.ppo
     torch.manual_seed(experiment.seed)
     base_env, config, dims = training_env(config)
@@ -72,8 +74,7 @@ def build_ppo_session(config: TrainConfig) -> PPOSession:
     actor = HybridActor(dims["node"], dims["edge"], config.model).to(device)
     policy = PPOPolicy(actor)
     env = TransformedEnv(base_env, policy.primer(dims["agents"], dims["choices"]))
-    central = config.algorithm_name == "mappo"
-    network = TeamValue(dims["node"], dims["edge"], dims["agents"], config.model, central)
+    network = TeamValue(dims["node"], dims["edge"], dims["agents"], config.model, central_value)
     value = ValueOperator(network.to(device))
     loss = ClipPPOLoss(
         policy,
@@ -127,7 +128,7 @@ def optimise_ppo(session: PPOSession, minibatch: TensorDictBase) -> dict[str, fl
 
 
 class PPOBatches:
-    """The per-batch PPO step (agents.trainer.BatchLearner; module docstring)."""
+    """The per-batch PPO step (agents.learner.BatchLearner; module docstring)."""
 
     def __init__(self, session: PPOSession) -> None:
         self.session = session
@@ -169,6 +170,15 @@ class PPOBatches:
         return {}
 
 
-PPO = Learner(
-    "PPO", build_ppo_session, restore_ppo, ppo_session_state, PPOBatches, PPO_METRIC_FIELDS
+MAPPO = Learner(
+    "MAPPO",
+    functools.partial(build_ppo_session, central_value=True),
+    restore_ppo,
+    ppo_session_state,
+    PPOBatches,
+    PPO_METRIC_FIELDS,
+    config_parts=("ppo",),
+)
+IPPO = dataclasses.replace(
+    MAPPO, name="IPPO", build=functools.partial(build_ppo_session, central_value=False)
 )

@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from agents.algorithms import learner_of
 from agents.checkpoint import CheckpointError, ResumeConfigError
 from agents.config import PRESETS, TrainConfig
 
@@ -18,13 +19,12 @@ _CLI_OPTIONS = {"noise": "--env", "robots": "--robots", "seed": "--seed"}
 def _comparable(config: TrainConfig, drop_cli: bool) -> dict[str, Any]:
     """Flat {"part.field": value} of the fields a resumed run must keep, the environment's task
     and the imitation phase included (delta_max comes from the environment, not the request);
-    `drop_cli` also leaves out --env/--robots/--seed. The PPO options count only for a PPO run
-    (GA-SAC does not read them)."""
+    `drop_cli` also leaves out --env/--robots/--seed. A learner's own parts (its record's
+    `config_parts`, e.g. PPO's options) count only for its runs."""
     dropped = set(RESUME_FREE_FIELDS) | (set(_CLI_OPTIONS) if drop_cli else set())
     flat: dict[str, Any] = {"algorithm_name": config.algorithm_name}
     parts = ("model", "algorithm", "experiment", "task", "imitation")
-    if config.algorithm_name != "ga-sac":
-        parts += ("ppo",)
+    parts += learner_of(config).config_parts
     for part in parts:
         for name, value in dataclasses.asdict(getattr(config, part)).items():
             if (part, name) == ("model", "delta_max"):

@@ -1,5 +1,6 @@
-"""Training: TorchRL `Collector` (0.14's SyncDataCollector) → GA-SAC (uniform replay → GASACLoss),
-or MAPPO / IPPO (agents.ppo_trainer: GAE → ClipPPOLoss), by `TrainConfig.algorithm_name`.
+"""Training: TorchRL `Collector` (0.14's SyncDataCollector) → the learner of
+`TrainConfig.algorithm_name` (agents.algorithms): GA-SAC (agents.gasac_trainer: uniform replay →
+GASACLoss) or MAPPO / IPPO (agents.ppo_trainer: GAE → ClipPPOLoss).
 
 `train(config)` (what `popbench train` calls) writes into `config.experiment.out_dir`:
     checkpoint.pt   latest state (agents.checkpoint); `resume=True` continues from it
@@ -49,113 +50,26 @@ import math
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import torch
-from tensordict import TensorDictBase
 from torchrl.collectors import Collector
-from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
+from agents.algorithms import learner_of
 from agents.checkpoint import read_checkpoint, save_checkpoint, save_snapshot
 from agents.config import TrainConfig
-from agents.diagnostics import critic_probe
 from agents.imitation import run_phase as run_imitation_phase
 from agents.imitation import start_from_actor
-from agents.metrics import METRIC_FIELDS, EpisodeTracker, plot_learning_curve, truncate_metrics
+from agents.learner import Learner
+from agents.metrics import EpisodeTracker, plot_learning_curve, truncate_metrics
 from agents.resume import check_resume_config
-from agents.session import Session, build_session, make_env, restore, session_state
+from agents.session import Session, make_env
 
 EVAL_SEED_OFFSET = 1_000_003
-
-
-def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
-    """One GA-SAC step on a minibatch: the summed losses reach disjoint parameter groups.
-
-    Until the critic warm-up is over (`session.actor_learns`, set by the trainer: after
-    `critic_warmup_updates` updates, or earlier by `critic_patience`) only the critic and the
-    temperatures learn: the actor's loss is left out, so the actor does not follow the gradient
-    of a critic that cannot yet tell one correction from another. The anchor's weight follows
-    the actor's updates (AlgorithmConfig.anchor_updates).
-    """
-    algorithm = session.config.algorithm
-    actor_learns = session.actor_learns or session.updates >= algorithm.critic_warmup_updates
-    session.actor_learns = actor_learns
-    decay = 1.0  # anchor_updates 0: the anchor's weight is held
-    if algorithm.anchor_updates > 0:
-        decay = max(0.0, 1.0 - session.actor_updates / algorithm.anchor_updates)
-    session.loss.anchor_scale.fill_(decay)
-    out = session.loss(batch)
-    total = sum(
-        out[key]
-        for key in out.keys()
-        if key.startswith("loss_") and (actor_learns or key != "loss_actor")
-    )
-    for optimiser in session.optimisers.values():
-        optimiser.zero_grad(set_to_none=True)
-    total.backward()
-    clip = session.config.algorithm.max_grad_norm
-    torch.nn.utils.clip_grad_norm_(session.loss.actor_parameters(), clip)
-    torch.nn.utils.clip_grad_norm_(session.loss.critic_parameters(), clip)
-    for optimiser in session.optimisers.values():
-        optimiser.step()
-    session.updater.step()
-    session.updates += 1
-    session.actor_updates += int(actor_learns)
-    return {key: float(value.detach()) for key, value in out.items()}
-
-
-@torch.no_grad()
-def calibrate(session: Session, warmup: TensorDictBase) -> dict[str, float]:
-    """At the end of the warm-up (before the first update): the reward scale c = 1 / std of the
-    warm-up rewards (auto_reward_scale) and the correction's target entropy = the start
-    policy's own on the warm-up states (auto_delta_entropy); returns what was set."""
-    algorithm, loss = session.config.algorithm, session.loss
-    values = {}
-    if algorithm.auto_reward_scale:
-        reward = warmup["next", "agents", "reward"].float()
-        loss.reward_scale.fill_(1.0 / float(reward.std().clamp(min=1e-6)))
-        values["reward_scale"] = float(loss.reward_scale)
-    if algorithm.auto_delta_entropy:
-        graphs = loss._graphs(warmup, next_=False)
-        out = loss._act(warmup, graphs, next_=False)
-        acting = loss._acting(out)
-        mean_log_prob = (acting * out.delta_log_prob).sum() / acting.sum().clamp(min=1.0)
-        loss.delta_target_entropy.fill_(-float(mean_log_prob))
-        values["delta_target_entropy"] = float(loss.delta_target_entropy)
-    return values
-
-
-@torch.no_grad()
-def held_out_td_error(session: Session, transitions: TensorDictBase) -> float:
-    """Mean |TD error| of the critic on `transitions` kept out of the replay buffer."""
-    loss = session.loss
-    graphs = loss._graphs(transitions, next_=False)
-    target = loss.soft_target(transitions, loss._graphs(transitions, next_=True), loss._alphas())
-    _, _, td_error = loss.qvalue_loss(transitions, graphs, target)
-    return float(td_error.abs().mean())
-
-
-class CriticWarmup:
-    """The critic-only phase's stopping rule (AlgorithmConfig.critic_patience): the held-out TD
-    error, checked every `every` updates, has not fallen by 1 % for `patience` checks."""
-
-    def __init__(self, patience: int, every: int = 16) -> None:
-        self.patience, self.every = patience, every
-        self.best, self.stale = float("inf"), 0
-
-    def over(self, session: Session, heldout: TensorDictBase | None) -> bool:
-        if self.patience <= 0 or heldout is None or session.updates % self.every:
-            return False
-        error = held_out_td_error(session, heldout)
-        if error < 0.99 * self.best:
-            self.best, self.stale = error, 0
-        else:
-            self.stale += 1
-        return self.stale >= self.patience
 
 
 @torch.no_grad()
@@ -205,31 +119,6 @@ class TrainResult:
             done = f"resumed at {self.resumed_from}; {self.frames} in total"
             return f"trained {self.frames_trained} frames ({done}); {where}"
         return f"trained {self.frames_trained} frames; {where}"
-
-
-@dataclasses.dataclass(frozen=True)
-class Learner:
-    """How `train` builds, saves, restores and trains one algorithm's session.
-
-    `batches(session)` returns the per-batch learning step of a (possibly resumed) run: a
-    `BatchLearner` (e.g. GA-SAC's replay and updates, agents.ppo_trainer's PPO epochs).
-    """
-
-    name: str  # the progress bar's label
-    build: Callable[[TrainConfig], Any]
-    restore: Callable[[Any, dict[str, Any]], None]
-    state: Callable[[Any], dict[str, Any]]
-    batches: Callable[[Any], BatchLearner]
-    fields: tuple[str, ...]  # metrics.csv's columns
-
-
-def learner_of(config: TrainConfig) -> Learner:
-    """The `Learner` of `config.algorithm_name` (the PPO one imported on first use)."""
-    if config.algorithm_name == "ga-sac":
-        return GASAC
-    from agents.ppo_trainer import PPO
-
-    return PPO
 
 
 def train(config: TrainConfig, resume: bool = True) -> TrainResult:
@@ -325,63 +214,6 @@ def interrupts_deferred() -> Iterator[None]:
 
 def _next_multiple(frames: int, interval: int) -> int:
     return (frames // interval + 1) * interval
-
-
-class BatchLearner(Protocol):
-    """One algorithm's learning from each collected batch (used by `_run`)."""
-
-    def learn(self, data: TensorDictBase) -> dict[str, Any]:
-        """Learn from a collector batch [num_envs, T]; the metrics row's entries it sets."""
-
-    def evaluate(self, eval_env: Any) -> dict[str, Any]:
-        """Extra entries of the row at an evaluation point (after the held-out F reduction)."""
-
-
-class GASACBatches:
-    """GA-SAC's per-batch step: replay, warm-up (calibration, held-out transitions for the
-    critic warm-up rule) and `updates_per_batch` optimisation steps."""
-
-    def __init__(self, session: Session) -> None:
-        experiment, algorithm = session.config.experiment, session.config.algorithm
-        self.session = session
-        self.buffer = ReplayBuffer(
-            storage=LazyTensorStorage(algorithm.buffer_size, device=experiment.device),
-            batch_size=algorithm.batch_size,
-        )
-        # A resumed run has lost its buffer: it needs only one minibatch before updating again.
-        warmup = algorithm.warmup_frames if session.frames == 0 else algorithm.batch_size
-        self.warmup_end = session.frames + warmup
-        self.warmup_rule = CriticWarmup(algorithm.critic_patience)
-        self.heldout: TensorDictBase | None = None  # transitions never replayed (warm-up rule)
-        if session.frames == 0:  # the fine-tuning's start policy is the anchor's π₀
-            session.loss.set_anchor(session.actor)
-
-    def learn(self, data: TensorDictBase) -> dict[str, Any]:
-        session, buffer = self.session, self.buffer
-        row: dict[str, Any] = {}
-        transitions = data.reshape(-1)
-        if self.heldout is None and session.updates == 0 and session.frames >= self.warmup_end:
-            self.heldout = transitions[: transitions.numel() // 4]  # a quarter, never replayed
-            buffer.extend(transitions[transitions.numel() // 4 :])
-            row.update(calibrate(session, buffer[:]))
-        else:
-            buffer.extend(transitions)
-        algorithm = session.config.algorithm
-        if session.frames >= self.warmup_end and len(buffer) >= algorithm.batch_size:
-            for _ in range(algorithm.updates_per_batch):
-                if not session.actor_learns and self.warmup_rule.over(session, self.heldout):
-                    session.actor_learns = True
-                logs = optimise(session, buffer.sample())
-                row.update({k: v for k, v in logs.items() if k in METRIC_FIELDS})
-        return row
-
-    def evaluate(self, eval_env: Any) -> dict[str, Any]:
-        if self.session.updates > 0:
-            return {"critic_probe": critic_probe(self.session, eval_env)}
-        return {}
-
-
-GASAC = Learner("GA-SAC", build_session, restore, session_state, GASACBatches, METRIC_FIELDS)
 
 
 def _run(

@@ -281,6 +281,34 @@ METHODS: dict[str, MethodRecord] = {
 }
 
 
+# Every other entry point of the layers above the core that the harness and the command line
+# load, by name, imported on first use (:func:`entry_point`): named here only, so the core
+# never imports ``agents`` and ``agents`` never imports the harness or the command line.
+ENTRY_POINTS: dict[str, str] = {
+    "train.presets": "agents.config:PRESETS",  # dict[str, agents.config.TrainConfig]
+    "train.algorithms": "agents.config:ALGORITHMS",  # the names of --algorithm
+    "train.overrides": "agents.config:with_overrides",  # (TrainConfig, ["part.field=value"])
+    "train.run": "agents.trainer:train",  # (TrainConfig, resume=bool) -> a run with .summary()
+    "train.gate_config": "agents.config:OutlierGateConfig",
+    "train.fit_gate": "agents.gate_training:fit_checkpoint",  # (path, out, config) -> str
+    "train.tasks": "envs.tasks:TASKS",  # dict[str, envs.tasks.Task], the benchmark tasks
+    "train.with_task": "agents.config:with_task",  # (TrainConfig, Task) -> config on the task
+    "heldout.row": "agents.heldout:evaluate_row",  # a held-out cell's spec -> its measures
+    "heldout.checkpoints": "agents.heldout:row_checkpoints",
+    "heldout.label": "agents.heldout:row_label",  # (row, checkpoint) -> the row's label
+    "heldout.policy": "agents.user_policy:describe_policy",  # (policy, arg, env) -> spec entries
+    "curves.snapshots": "agents.checkpoint:run_snapshots",  # a run's actor snapshots
+    "curves.identity": "agents.checkpoint:snapshot_identity",  # what a snapshot's run compares
+}
+
+
+def entry_point(name: str) -> Any:
+    """The object registered under ``name`` in :data:`ENTRY_POINTS`, imported on first use."""
+    if name not in ENTRY_POINTS:
+        raise ValueRangeError("entry point", name, ", ".join(ENTRY_POINTS))
+    return load_object(ENTRY_POINTS[name])
+
+
 def method_record(name: str) -> MethodRecord:
     """The record registered under ``name`` (ValueRangeError listing the names otherwise)."""
     if name not in METHODS:

@@ -547,8 +547,8 @@ def test_tiny_training_run_checkpoints_and_resumes(tmp_path) -> None:
 
 def test_critic_warmup_leaves_the_actor_unchanged(transitions) -> None:
     from agents.config import ExperimentConfig
+    from agents.gasac_trainer import optimise
     from agents.session import build_session
-    from agents.trainer import optimise
 
     experiment = ExperimentConfig(robots=3, poses_per_robot=10, num_envs=4, progress=False)
     for warmup, actor_moves in ((5, False), (0, True)):

@@ -151,7 +151,7 @@ def test_a_run_given_twice_is_a_one_line_error(runs, tmp_path, capsys) -> None:
 
 def test_training_csvs_of_equal_names_are_lines_named_by_folder(runs, tmp_path, capsys) -> None:
     from popbench.cli import main
-    from popbench.harness.figures import line_labels
+    from popbench.plotting import line_labels
 
     files = [run / "metrics.csv" for run in runs]
     assert line_labels(files) == [run.name for run in runs]

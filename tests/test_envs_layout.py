@@ -1,38 +1,70 @@
-"""The layout of envs/ (issue 27, item 4): the environment's dynamics (core, base step,
-read-out, geometry, observation, tree) import no policy (expert, sweep) and have no import
-circle at run time; type-only imports (under TYPE_CHECKING) do not count."""
+"""The layout of the layers: the environment's dynamics (core, base step, read-out, geometry,
+observation, tree) import no policy (expert, sweep); no import circle inside envs/ or agents/ at
+run time (imports inside functions count; type-only imports under TYPE_CHECKING do not); agents/
+never imports the harness or the command line; and every entry point of the layers above the core
+that the core loads by a ``"module:attribute"`` string is named in one registry."""
 
 from __future__ import annotations
 
 import ast
+import importlib
 from pathlib import Path
 
-ENVS = Path(__file__).resolve().parents[1] / "envs"
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ENVS = ROOT / "envs"
 DYNAMICS = {"core", "basestep", "readout", "geometry", "observation", "tree", "state", "features"}
 POLICIES = {"expert", "sweep"}
+PACKAGES = ("popbench", "envs", "agents", "baselines")
 
 
-def runtime_imports(path: Path) -> set[str]:
-    """The envs modules `path` imports outside `if TYPE_CHECKING:` blocks."""
-    tree = ast.parse(path.read_text())
-    type_only = {
+def _type_only(tree: ast.AST) -> set[int]:
+    return {
         id(node)
         for block in ast.walk(tree)
         if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
         for node in ast.walk(block)
     }
+
+
+def imported_modules(path: Path) -> set[str]:
+    """The dotted modules `path` imports outside `if TYPE_CHECKING:` blocks (`from a import b`
+    counts as `a` and `a.b`)."""
+    tree = ast.parse(path.read_text())
+    type_only = _type_only(tree)
     names = set()
     for node in ast.walk(tree):
         if id(node) in type_only:
             continue
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("envs."):
-            names.add(node.module.split(".")[1])
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            names |= {f"{node.module}.{alias.name}" for alias in node.names}
         elif isinstance(node, ast.Import):
-            names |= {a.name.split(".")[1] for a in node.names if a.name.startswith("envs.")}
+            names |= {alias.name for alias in node.names}
     return names
 
 
-GRAPH = {path.stem: runtime_imports(path) for path in ENVS.glob("*.py") if path.stem != "__init__"}
+def runtime_imports(path: Path, package: str = "envs") -> set[str]:
+    """The modules of `package` that `path` imports at run time."""
+    prefix = f"{package}."
+    return {
+        name.split(".")[1]
+        for name in imported_modules(path)
+        if name.startswith(prefix) and (ROOT / package / f"{name.split('.')[1]}.py").is_file()
+    }
+
+
+def import_graph(package: str) -> dict[str, set[str]]:
+    folder = ROOT / package
+    return {
+        path.stem: runtime_imports(path, package)
+        for path in folder.glob("*.py")
+        if path.stem != "__init__"
+    }
+
+
+GRAPH = import_graph("envs")
 
 
 def test_the_dynamics_import_no_policy() -> None:
@@ -40,23 +72,29 @@ def test_the_dynamics_import_no_policy() -> None:
         assert not GRAPH[module] & POLICIES, f"envs.{module} imports {GRAPH[module] & POLICIES}"
 
 
-def test_no_import_circle_at_run_time() -> None:
+@pytest.mark.parametrize("package", ["envs", "agents"])
+def test_no_import_circle_at_run_time(package: str) -> None:
+    graph = import_graph(package)
+
     def reach(start: str) -> set[str]:
         seen, todo = set(), [start]
         while todo:
-            for name in GRAPH.get(todo.pop(), set()) - seen:
+            for name in graph.get(todo.pop(), set()) - seen:
                 seen.add(name)
                 todo.append(name)
         return seen
 
-    circles = sorted(module for module in GRAPH if module in reach(module))
-    assert not circles, f"modules on an import circle: {circles}"
+    circles = sorted(module for module in graph if module in reach(module))
+    assert not circles, f"{package} modules on an import circle: {circles}"
 
 
-def test_the_checker_sees_imports() -> None:  # the two tests above cannot pass vacuously
+def test_the_checker_sees_imports() -> None:  # the tests above cannot pass vacuously
     assert {"basestep", "readout", "tree"} <= GRAPH["core"]
     assert "core" in GRAPH["sweep"] and "expert" in GRAPH["sweep"]
     assert "core" not in GRAPH["readout"]  # imported for its type only
+    agents = import_graph("agents")
+    assert {"algorithms", "learner"} <= agents["trainer"]  # one inside a function: checkpoint
+    assert "checkpoint" in agents["imitation"]
 
 
 def test_the_base_step_and_the_read_out_are_functions_of_the_state() -> None:
@@ -68,3 +106,58 @@ def test_the_base_step_and_the_read_out_are_functions_of_the_state() -> None:
         names |= {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
         assert "PGOCore" not in names, f"envs.{module} names PGOCore"
         assert "CoreState" in names  # the checker reads names
+
+
+def test_agents_never_import_the_harness_or_the_command_line() -> None:
+    offending = {
+        path.name: sorted(
+            name
+            for name in imported_modules(path)
+            if name.startswith(("popbench.harness", "popbench.cli"))
+        )
+        for path in sorted((ROOT / "agents").rglob("*.py"))
+    }
+    assert not {name: found for name, found in offending.items() if found}
+
+
+def _entry_strings(path: Path) -> list[str]:
+    """String constants of `path` that name an attribute of a project module, "pkg.mod:attr"."""
+    tree = ast.parse(path.read_text())
+    return [
+        node.value
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant)
+        and isinstance(node.value, str)
+        and ":" in node.value
+        and node.value.split(".")[0] in PACKAGES
+        and node.value.partition(":")[2].isidentifier()
+        and all(part.isidentifier() for part in node.value.partition(":")[0].split("."))
+    ]
+
+
+def test_string_loaded_entry_points_are_named_in_one_registry() -> None:
+    registry = ROOT / "popbench" / "methods.py"
+    elsewhere = {
+        str(path.relative_to(ROOT)): strings
+        for package in PACKAGES
+        for path in sorted((ROOT / package).rglob("*.py"))
+        if path != registry and (strings := _entry_strings(path))
+    }
+    assert not elsewhere, f"'module:attribute' strings outside popbench/methods.py: {elsewhere}"
+    assert "agents.heldout:evaluate_row" in _entry_strings(registry)  # the scan sees them
+
+
+def test_every_registered_entry_point_loads() -> None:
+    from popbench.methods import ENTRY_POINTS, entry_point
+
+    for name, target in ENTRY_POINTS.items():
+        module, _, attribute = target.partition(":")
+        assert entry_point(name) is getattr(importlib.import_module(module), attribute)
+
+
+def test_every_algorithm_has_a_learner_record() -> None:
+    from agents.algorithms import LEARNERS
+    from agents.config import ALGORITHMS
+
+    assert set(LEARNERS) == set(ALGORITHMS)
+    assert len({id(learner) for learner in LEARNERS.values()}) == len(LEARNERS)

@@ -186,8 +186,9 @@ def test_outliers_cells_run_methods_with_their_record_options():
 
 @pytest.mark.dataset
 def test_scalability_and_trajectory_figures(tmp_path):
-    from popbench.harness.figures import plot_learning_curves, plot_trajectories
+    from popbench.harness.figures import plot_trajectories
     from popbench.harness.scalability import ScalabilityConfig, run_scalability
+    from popbench.plotting import plot_learning_curves
     from tests.conftest import require_dataset
 
     require_dataset("mit")
@@ -331,7 +332,7 @@ def test_fresh_recomputes_cached_cells(tmp_path):
 @pytest.mark.parametrize("text", ["VERTEX_SE2 0 0 0 0\n", "a,b\n1,2\n", "frames,label\n1,x\n"])
 def test_plot_curves_rejects_a_file_that_is_not_a_metrics_csv(tmp_path, text: str) -> None:
     from popbench.errors import ValueRangeError
-    from popbench.harness.figures import plot_learning_curves
+    from popbench.plotting import plot_learning_curves
 
     path = tmp_path / "metrics.csv"
     path.write_text(text)

@@ -110,9 +110,9 @@ def test_entropy_is_the_sum_of_the_parts() -> None:
 @pytest.fixture(scope="module")
 def rollout(tmp_path_factory):
     """A MAPPO session and a 4-step rollout of its policy (sampling) in its 2 envs."""
-    from agents.ppo_trainer import build_ppo_session
+    from agents.ppo_trainer import MAPPO
 
-    session = build_ppo_session(tiny(tmp_path_factory.mktemp("ppo"), "mappo", 16))
+    session = MAPPO.build(tiny(tmp_path_factory.mktemp("ppo"), "mappo", 16))
     return session, session.env.rollout(4, session.policy, break_when_any_done=False)
 
 

@@ -49,7 +49,7 @@ def metric_frames(out_dir) -> list[int]:
 
 def fail_at_update(monkeypatch, number: int, action) -> None:
     """Make the `number`-th optimisation step of the next run call `action()` first."""
-    import agents.trainer as trainer
+    import agents.gasac_trainer as trainer
 
     original, calls = trainer.optimise, [0]
 

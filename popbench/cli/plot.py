@@ -92,7 +92,7 @@ def curves_command(
         references = [Path(name) for name in reference.split(",") if name]
         written = write_curves(paths, out, problems, references)
     else:
-        from popbench.harness.figures import plot_learning_curves
+        from popbench.plotting import plot_learning_curves
 
         written = plot_learning_curves(paths, out)
     typer.echo(" ".join(str(p) for p in written))

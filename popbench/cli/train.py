@@ -1,8 +1,8 @@
 """``popbench train``: GA-SAC, MAPPO or IPPO actors for the learned methods.
 
-The trainer lives in ``agents/``, a layer above the core: it is named here by
-``"module:attribute"`` strings and imported on first use (:func:`popbench.methods.load_object`,
-as the methods' solve functions are), so ``popbench`` never imports ``agents`` at import time.
+The trainer lives in ``agents/``, a layer above the core: it is named in the core's registry
+(:data:`popbench.methods.ENTRY_POINTS`) and imported on first use, as the methods' solve
+functions are, so ``popbench`` never imports ``agents`` at import time.
 """
 
 from __future__ import annotations
@@ -16,19 +16,6 @@ from popbench.choices import NOISES
 from popbench.cli.errors import Interrupted
 from popbench.cli.options import CommandThreads
 from popbench.errors import ValueRangeError
-
-# What ``popbench train`` runs, loaded lazily: the named configurations and the training loop.
-TRAINING = {
-    "presets": "agents.config:PRESETS",  # dict[str, agents.config.TrainConfig]
-    "train": "agents.trainer:train",  # (TrainConfig, resume=bool) -> a run with .summary()
-    "overrides": "agents.config:with_overrides",  # (TrainConfig, ["part.field=value"]) -> config
-    "algorithms": "agents.config:ALGORITHMS",  # the names of --algorithm
-    "gate_config": "agents.config:OutlierGateConfig",
-    "fit_gate": "agents.gate_training:fit_checkpoint",  # (path, out, config) -> summary str
-    "tasks": "envs.tasks:TASKS",  # dict[str, envs.tasks.Task], the benchmark tasks
-    "with_task": "agents.config:with_task",  # (TrainConfig, Task) -> config on the task
-}
-
 
 TRAIN_ENVS = NOISES
 TRAIN_DEVICES = ("cpu", "cuda")
@@ -54,12 +41,12 @@ def train_config(
     ``imitation_episodes``: None keeps the task's or the preset's)."""
     import dataclasses
 
-    from popbench.methods import load_object
+    from popbench.methods import entry_point
 
-    presets = load_object(TRAINING["presets"])  # agents.config.PRESETS
-    algorithms = load_object(TRAINING["algorithms"])
+    presets = entry_point("train.presets")  # agents.config.PRESETS
+    algorithms = entry_point("train.algorithms")
 
-    tasks = load_object(TRAINING["tasks"])  # envs.tasks.TASKS
+    tasks = entry_point("train.tasks")  # envs.tasks.TASKS
     if task is not None and task not in tasks:
         raise ValueRangeError("--task", task, " or ".join(tasks))
     if env is not None and env not in TRAIN_ENVS:
@@ -87,8 +74,8 @@ def train_config(
         settings = [*(settings or []), f"imitation.episodes={imitation_episodes}"]
     config = presets[preset]
     if task is not None:
-        config = load_object(TRAINING["with_task"])(config, tasks[task])
-    config = load_object(TRAINING["overrides"])(config, settings or [])
+        config = entry_point("train.with_task")(config, tasks[task])
+    config = entry_point("train.overrides")(config, settings or [])
     if algorithm is not None:
         config = dataclasses.replace(config, algorithm_name=algorithm)
     name = config.algorithm_name
@@ -196,10 +183,10 @@ def train_command(
     threads: CommandThreads = 1,
 ) -> None:
     """Train GA-SAC, MAPPO or IPPO actors (TorchRL collector) with checkpoints and curves."""
-    from popbench.methods import load_object
+    from popbench.methods import entry_point
     from popbench.threads import limited_threads
 
-    run_training = load_object(TRAINING["train"])  # agents.trainer.train
+    run_training = entry_point("train.run")  # agents.trainer.train
     config = train_config(
         env,
         robots,
@@ -255,13 +242,13 @@ def train_gate_command(
     Unset options take agents.config.OutlierGateConfig's values."""
     import dataclasses
 
-    from popbench.methods import load_object
+    from popbench.methods import entry_point
     from popbench.threads import limited_threads
 
     given = {"problems": problems, "validation": validation, "epochs": epochs, "seed": seed}
-    defaults = load_object(TRAINING["gate_config"])()  # agents.config.OutlierGateConfig
+    defaults = entry_point("train.gate_config")()  # agents.config.OutlierGateConfig
     config = dataclasses.replace(defaults, **{k: v for k, v in given.items() if v is not None})
-    fit = load_object(TRAINING["fit_gate"])  # agents.gate_training.fit_checkpoint
+    fit = entry_point("train.fit_gate")  # agents.gate_training.fit_checkpoint
     with limited_threads(threads):
         typer.echo(fit(checkpoint, out or checkpoint, config))
 
@@ -279,9 +266,9 @@ def tasks_command() -> None:
     """List the benchmark tasks: their problems, environment modes and evaluation."""
     import textwrap
 
-    from popbench.methods import load_object
+    from popbench.methods import entry_point
 
-    for name, task in load_object(TRAINING["tasks"]).items():  # envs.tasks.TASKS
+    for name, task in entry_point("train.tasks").items():  # envs.tasks.TASKS
         problems = f"n={task.robots} {task.noise}, {task.poses_per_robot} poses/robot"
         if task.outlier_rate_max:
             problems += f", outliers U(0, {task.outlier_rate_max:g})"

@@ -29,10 +29,10 @@ import pandas as pd
 from popbench.errors import ValueRangeError
 from popbench.harness import comparison
 from popbench.harness.heldout import HELDOUT_SEED_BASE, ROW_ALIASES, HeldoutConfig, run_heldout
-from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.scores import PROBLEM_KEY, ZERO_ROW, normalised, optimum
 from popbench.harness.stratified import iqm
-from popbench.methods import load_object
+from popbench.methods import entry_point
+from popbench.plotting import pyplot, save_figure
 
 CURVE_COLUMNS = (
     "task",
@@ -63,8 +63,6 @@ DEFAULT_POSES_PER_ROBOT = HeldoutConfig.poses_per_robot
 REFERENCE_ROWS = ("gn-sweep", "imitation", "local-lm")
 # The run's snapshots and what they compare, from the agents package (loaded by name: the core
 # never imports agents).
-SNAPSHOTS_FUNCTION = "agents.checkpoint:run_snapshots"
-IDENTITY_FUNCTION = "agents.checkpoint:snapshot_identity"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,12 +90,12 @@ def score_run(run: Path, problems: int) -> pd.DataFrame:
     done = pd.read_csv(curve_path) if curve_path.is_file() else pd.DataFrame(columns=CURVE_COLUMNS)
     if "poses_per_robot" not in done:
         done.insert(1, "poses_per_robot", DEFAULT_POSES_PER_ROBOT)
-    found = load_object(SNAPSHOTS_FUNCTION)(run)
+    found = entry_point("curves.snapshots")(run)
     if not found:
         if done.empty:
             raise ValueRangeError("run folder", str(run), "a folder with snapshots/ or curve.csv")
         return done
-    identity = RunIdentity(**load_object(IDENTITY_FUNCTION)(next(iter(found.values()))))
+    identity = RunIdentity(**entry_point("curves.identity")(next(iter(found.values()))))
     final = max(found)
     heldout_csv = run / "heldout" / "heldout.csv"
     records = [done]
@@ -323,9 +321,9 @@ def with_scores(records: pd.DataFrame, known: pd.DataFrame) -> list[pd.DataFrame
 
 def run_identity(run: Path) -> tuple[str, str, int]:
     """(algorithm, start, seed) of a run folder, from its snapshots or its curve.csv."""
-    found = load_object(SNAPSHOTS_FUNCTION)(run)
+    found = entry_point("curves.snapshots")(run)
     if found:
-        identity = load_object(IDENTITY_FUNCTION)(next(iter(found.values())))
+        identity = entry_point("curves.identity")(next(iter(found.values())))
         return identity["algorithm"], identity["start"], int(identity["seed"])
     curve = run / "curve.csv"
     if not curve.is_file():

@@ -29,7 +29,7 @@ import pandas as pd
 from popbench.harness.cache import code_fingerprint
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.runner import run_experiment
-from popbench.methods import load_object
+from popbench.methods import entry_point
 from popbench.metrics import bootstrap_ci
 from popbench.reconcile import DEFAULT_CONSENSUS
 
@@ -54,11 +54,6 @@ PAIRS = (("learned-order", "gn-sweep"), ("imitation", "learned-order"), ("ga-sac
 # The rows a user's policy is compared with, problem by problem (those present).
 POLICY_REFERENCES = ("no-op", "gn-sweep", "imitation", "ga-sac", "local-lm")
 PAIRED_METRICS = ("F_robots", "F_local", "F", "ATE")
-# The function that computes one row of one problem: (spec) -> {"F", "ATE", "F_local"}.
-ROW_FUNCTION = "agents.heldout:evaluate_row"
-CHECKPOINTS_FUNCTION = "agents.heldout:row_checkpoints"
-LABEL_FUNCTION = "agents.heldout:row_label"  # (row, checkpoint) -> the row's label
-POLICY_FUNCTION = "agents.user_policy:describe_policy"  # (policy, arg, env) -> spec entries
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,9 +109,9 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
     rows, the checkpoint's sha256 it is computed from (for the policy row, its digest); a
     ``label`` where the row is shown under another name. A learned row whose checkpoint does
     not exist is left out of the default rows and refused when asked for by name."""
-    checkpoints = load_object(CHECKPOINTS_FUNCTION)(config.checkpoint, config.imitation_checkpoint)
+    checkpoints = entry_point("heldout.checkpoints")(config.checkpoint, config.imitation_checkpoint)
     labels = {
-        row: load_object(LABEL_FUNCTION)(row, found[0])
+        row: entry_point("heldout.label")(row, found[0])
         for row, found in checkpoints.items()
         if found is not None
     }
@@ -126,7 +121,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
         if label != row:
             extra[row]["label"] = label
     if config.policy is not None:
-        described = load_object(POLICY_FUNCTION)(
+        described = entry_point("heldout.policy")(
             config.policy, config.policy_arg, config.policy_env
         )
         described["label"] = config.policy_name or described["label"]
@@ -167,7 +162,7 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
     """One row of one held-out problem (``agents.heldout.evaluate_row``) and its wall time; the
     row under its label."""
     started = time.perf_counter()
-    measured = load_object(ROW_FUNCTION)(spec)
+    measured = entry_point("heldout.row")(spec)
     return {
         "noise": spec["noise"],
         "robots": spec["robots"],
@@ -360,7 +355,7 @@ def _paired_markdown(pairs: pd.DataFrame) -> list[str]:
 
 def figure(frame: pd.DataFrame, stem: Path) -> list[Path]:
     """F per row (box plot over problems, log scale), one panel per (noise, robots)."""
-    from popbench.harness.plotting import pyplot, save_figure
+    from popbench.plotting import pyplot, save_figure
 
     plt = pyplot()
     groups = list(frame.groupby(["noise", "robots"], sort=False))

@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from popbench.harness.plotting import pyplot, save_figure
 from popbench.methods import METHODS
 from popbench.methods import label as method_label
+from popbench.plotting import pyplot, save_figure
 
 THRESHOLDS = (1e-1, 1e-2, 1e-3)
 PROFILE_ROBOTS = 7  # the team size of the figures (the largest in the table when absent)

@@ -13,11 +13,11 @@ from pathlib import Path
 import pandas as pd
 
 from popbench.harness.paper import paper_table1_cell
-from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.profiles import THRESHOLDS, gap_column
 from popbench.methods import METHODS
 from popbench.methods import label as method_label
 from popbench.metrics import mean_ci
+from popbench.plotting import pyplot, save_figure
 
 # (row label, our column, paper index in (F, time), lower is better)
 _TABLE1_METRICS = (

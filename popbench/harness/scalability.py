@@ -14,9 +14,9 @@ import pandas as pd
 
 from popbench.harness import problems, table1
 from popbench.harness.executors import Row, Run, Spec
-from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.profiles import HISTORY_FIELDS
 from popbench.harness.runner import run_experiment
+from popbench.plotting import pyplot, save_figure
 
 ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
 METHODS = ("mm-pgo", "prop-v1", "prop-v2")  # the paper's Fig. 5
