@@ -92,6 +92,24 @@ def checkpoint_algorithm(path: str | Path) -> str:
 ACTOR_KEYS = ("config", "dims", "actor", "frames", "updates")
 
 
+def training_state(
+    session: Any, optimisers: dict[str, torch.optim.Optimizer], **progress: Any
+) -> dict[str, Any]:
+    """A training session's checkpoint (the module docstring's layout): its config, dims,
+    actor, loss, ``optimisers`` by name, frames and updates, then the learner's own
+    ``progress`` entries."""
+    return {
+        "config": session.config.to_dict(),
+        "dims": session.dims,
+        "actor": session.actor.state_dict(),
+        "loss": session.loss.state_dict(),
+        "optimisers": {name: optimiser.state_dict() for name, optimiser in optimisers.items()},
+        "frames": session.frames,
+        "updates": session.updates,
+        **progress,
+    }
+
+
 def save_actor(
     path: str | Path,
     config: TrainConfig,

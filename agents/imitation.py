@@ -36,7 +36,7 @@ import torch.nn.functional as F  # noqa: N812
 from agents.actor import HybridActor
 from agents.config import ExperimentConfig, ImitationConfig, TaskConfig, TrainConfig
 from agents.encoder import GraphBatch
-from agents.loss_terms import gate_supervision_loss, imitation_losses
+from agents.loss_terms import actor_imitation_losses, gate_supervision_loss
 
 
 @dataclasses.dataclass
@@ -143,15 +143,7 @@ def imitate(
                 expert_edge = expert.edge()
                 expert_delta = expert.actor_delta(expert_edge)
             acting = out.edge < e
-            edge_loss, delta_loss = imitation_losses(
-                out.edge_log_probs,
-                right,
-                out.delta_mean,
-                out.delta_log_std,
-                label,
-                acting,
-                bound,
-            )
+            edge_loss, delta_loss = actor_imitation_losses(out, right, label, acting, bound)
             loss = edge_loss + config.delta_weight * delta_loss
             gate_loss = torch.zeros(())
             if config.gate_weight > 0:

@@ -63,7 +63,7 @@ from agents.actor import (
 from agents.config import AlgorithmConfig
 from agents.critic import CentralCritic
 from agents.encoder import Encoding, GraphBatch
-from agents.loss_terms import gate_supervision_loss, imitation_losses
+from agents.loss_terms import actor_imitation_losses, gate_supervision_loss
 
 LABELS = ("agents", "labels")
 
@@ -298,15 +298,8 @@ class GASACLoss(LossModule):
             bound = self.actor_network.delta_max.clone()
         right = tensordict.get(keys.right_edges).reshape(-1, choices)
         label = tensordict.get(keys.expert_delta).reshape(-1, 3)
-        edge_loss, delta_loss = imitation_losses(
-            out.edge_log_probs,
-            right,
-            out.delta_mean,
-            out.delta_log_std,
-            label,
-            expert_edge < choices - 1,
-            bound,
-        )
+        acting = expert_edge < choices - 1
+        edge_loss, delta_loss = actor_imitation_losses(out, right, label, acting, bound)
         return self.bc_weight * (edge_loss + delta_loss)
 
     def gate_loss(self, tensordict: TensorDictBase, out: ActorOutput, graphs: GraphBatch) -> Tensor:

@@ -29,8 +29,13 @@ The gate keeps its hard-concrete form and its L1 penalty; this term only adds a 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 import torch.nn.functional as F  # noqa: N812
+
+if TYPE_CHECKING:
+    from agents.actor import ActorOutput
 
 LABEL_MARGIN = 1e-3  # |δ*| / bound ≤ 1 − margin before the atanh
 
@@ -69,6 +74,19 @@ def imitation_losses(
     per_graph = (fit + width).sum(-1)
     delta_loss = (per_graph * acting).sum() / acting.sum().clamp(min=1)
     return edge_loss, delta_loss
+
+
+def actor_imitation_losses(
+    out: ActorOutput,
+    right: torch.Tensor,
+    label: torch.Tensor,
+    acting: torch.Tensor,
+    bound: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`imitation_losses` of an actor pass ``out``: its edge log-probabilities and the
+    Gaussian on its edge, against the right edges and the label (arguments as there)."""
+    mean, log_std = out.delta_mean, out.delta_log_std
+    return imitation_losses(out.edge_log_probs, right, mean, log_std, label, acting, bound)
 
 
 STANDARDISED_CAP = 3.0  # |u* − μ| / σ beyond which the width term stops growing

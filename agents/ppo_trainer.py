@@ -26,6 +26,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from agents.actor import AGENTS, HybridActor
+from agents.checkpoint import training_state
 from agents.config import TrainConfig
 from agents.learner import Learner
 from agents.metrics import PPO_METRIC_FIELDS
@@ -95,16 +96,8 @@ def build_ppo_session(config: TrainConfig, central_value: bool) -> PPOSession:
 
 def ppo_session_state(session: PPOSession) -> dict[str, Any]:
     """The checkpoint (agents.checkpoint's layout: "config", "dims", "actor" as GA-SAC's)."""
-    return {
-        "config": session.config.to_dict(),
-        "dims": session.dims,
-        "actor": session.actor.state_dict(),
-        "loss": session.loss.state_dict(),
-        "optimisers": {"ppo": session.optimiser.state_dict()},
-        "frames": session.frames,
-        "updates": session.updates,
-        "reward_scale": session.reward_scale,
-    }
+    optimisers = {"ppo": session.optimiser}
+    return training_state(session, optimisers, reward_scale=session.reward_scale)
 
 
 def restore_ppo(session: PPOSession, state: dict[str, Any]) -> None:

@@ -12,7 +12,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.objectives import SoftUpdate
 
 from agents.actor import GASACPolicy, HybridActor
-from agents.checkpoint import read_checkpoint
+from agents.checkpoint import read_checkpoint, training_state
 from agents.config import TrainConfig
 from agents.critic import CentralCritic
 from agents.loss import GASACLoss
@@ -109,17 +109,9 @@ def build_session(config: TrainConfig) -> Session:
 
 
 def session_state(session: Session) -> dict[str, Any]:
-    return {
-        "config": session.config.to_dict(),
-        "dims": session.dims,
-        "actor": session.actor.state_dict(),
-        "loss": session.loss.state_dict(),
-        "optimisers": {name: opt.state_dict() for name, opt in session.optimisers.items()},
-        "frames": session.frames,
-        "updates": session.updates,
-        "actor_updates": session.actor_updates,
-        "actor_learns": session.actor_learns,
-    }
+    """GA-SAC's checkpoint (agents.checkpoint.training_state, with the actor's progress)."""
+    progress = {"actor_updates": session.actor_updates, "actor_learns": session.actor_learns}
+    return training_state(session, session.optimisers, **progress)
 
 
 def restore(session: Session, checkpoint: Path | dict[str, Any]) -> None:

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from agents.config import TRAJECTORY_TASK, ExperimentConfig, ImitationConfig
-from agents.imitation import imitate, imitation_losses, make_core
-from agents.loss_terms import pre_tanh_label
+from agents.imitation import imitate, make_core
+from agents.loss_terms import imitation_losses, pre_tanh_label
 
 
 def test_edge_loss_is_the_log_of_the_right_choices_probability():
