@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 
 from popbench.harness import stratified
-from popbench.harness.plotting import pyplot, save_figure
 from popbench.harness.stratified import SCHEMES
+from popbench.plotting import pyplot, save_figure
 
 REPS = 2000
 TAUS = np.linspace(-0.5, 1.0, 151)  # the profiles' thresholds on the score
