@@ -35,10 +35,7 @@ a resumed run restarts the episodes that were in progress (the environments are 
 
 Frames are counted as TorchRL does: one frame = one step of one environment of the batch (all
 n agents at once), so a transition in the buffer is one joint (multi-agent) step.
-
-Held-out evaluation: `eval_problems` synthetic problems from a seed stream disjoint from training
-(seed + EVAL_SEED_OFFSET), rewarded with F, run for one episode with the deterministic policy;
-the score is 1 − Σ_i F_i(T) / Σ_i F_i(0) over the agents' local graphs (before consensus).
+Held-out evaluation: :func:`evaluate_f_reduction`.
 """
 
 from __future__ import annotations
@@ -75,6 +72,10 @@ EVAL_SEED_OFFSET = 1_000_003
 @torch.no_grad()
 def evaluate_f_reduction(session: Session, eval_env) -> float:
     """1 − ΣF(T)/ΣF(0) of one deterministic episode on the held-out problems.
+
+    `eval_problems` synthetic problems from a seed stream disjoint from training (seed +
+    EVAL_SEED_OFFSET), rewarded with F, run for one episode with the deterministic policy; the
+    score is 1 − Σ_i F_i(T) / Σ_i F_i(0) over the agents' local graphs (before consensus).
 
     Steps past an element's end are harmless: its only valid action is then the no-op.
     """

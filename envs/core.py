@@ -1,9 +1,8 @@
 """Batched torch core of the multi-agent PGO environment (paper §III-B; docs/environment.md).
 
-One :class:`PGOCore` holds ``B`` independent problems of ``n`` robots (agents). It is the single
-implementation behind the TorchRL env (:mod:`envs.torchrl_env`, any ``B``) and the PettingZoo env
-(:mod:`envs.pettingzoo_env`, ``B = 1``); what the actor observes of it is read by
-:mod:`envs.readout`.
+One :class:`PGOCore` holds ``B`` independent problems of ``n`` robots (agents), behind the TorchRL
+env (:mod:`envs.torchrl_env`, any ``B``) and the PettingZoo env (:mod:`envs.pettingzoo_env`,
+``B = 1``); what the actor observes of it is read by :mod:`envs.readout`.
 
 State layout: local copies
     Agent ``i`` holds its local graph (:class:`popbench.distributed.LocalGraph`: owned vertices,
@@ -13,11 +12,9 @@ State layout: local copies
     conflict, each agent's step costs O(degree of the moved vertex), and reconciling the copies
     is the consensus step that runs after the episode (paper Fig. 1; :mod:`popbench.consensus`).
 
-Padding
-    Every agent's graph is padded to ``V`` vertices, ``E`` edges and ``D`` incident edges per
-    vertex (:class:`Dimensions`). Internally one extra *trash* vertex (index ``V``) and one extra
-    *trash* edge slot (index ``E``) absorb the writes of padding and of the no-op action, so a step
-    is branch-free.
+Padding: every agent's graph is padded to ``V`` vertices, ``E`` edges and ``D`` incident edges per
+vertex (:class:`Dimensions`); one extra *trash* vertex (index ``V``) and edge slot (index ``E``)
+absorb the writes of padding and of the no-op action, so a step is branch-free.
 
 Action (per agent)
     ``edge`` ∈ {0..E}: a local edge ``p → q`` not processed yet; ``E`` is the *no-op*, valid only
@@ -28,36 +25,18 @@ Action (per agent)
         x_q ← x_p ∘ (between(x_p, x_q) + Δ),     angle wrapped to [−π, π)
 
     i.e. the relative pose of ``q`` seen from ``p`` changes by exactly ``Δ``; ``x_p`` stays. The
-    edge is then marked processed. Default ``Δmax = (0.5 m, 0.5 m, 0.3 rad)``: with the synthetic
-    noise levels (σ 0.06–0.22 per edge on x, y [m] and θ [rad]) one step can cancel ≈ 2–8 σ of
-    translation noise and ≈ 1.4–5 σ of rotation noise, but cannot teleport a pose (the paper's
-    safety constraint, §III-B footnote).
+    edge is then marked processed. Default ``Δmax = (0.5 m, 0.5 m, 0.3 rad)`` (why:
+    docs/environment.md, "The action bound").
 
 Modes (correction, observation, action scale, base step): see :class:`PGOCore`.
+Reward (per agent, per step): the relative drop of its localisation error ``L`` (against ground
+truth, or F with ``reward="F"``) plus a terminal bonus (docs/environment.md, "Localisation error").
 
-Localisation error ``L`` of agent ``i`` (reward signal)
-    ``L_i(x) = Σ_{e ∈ E_i} κ_e wrap(θ_q − θ_p − θ*_e)² + τ_e ‖R(θ_p)ᵀ(t_q − t_p) − t*_e‖²``
-    over the agent's local edges, with its own copies of the poses and the κ/τ weights of F.
-    ``reward="localisation"`` (default, needs ground truth): ``z*_e = between(x_gt,p, x_gt,q)``,
-    the true relative pose — the localisation χ² of the local graph against ground truth. It is
-    gauge-free (no alignment needed), zero exactly when the local estimate equals the truth up to
-    one rigid motion, and it changes only on the edges incident to the moved vertex.
-    ``reward="F"``: ``z*_e = z̃_e`` (the measurements), i.e. ``L_i`` is the objective F of the local
-    graph (no ground truth needed).
-
-Reward (per agent, per step ``t``)
-    ``r_t = clip(tanh((L_{t−1} − L_t) / (L_{t−1} + ε)), −1, 1)``; on the step that ends the episode
-    every agent also gets ``log((L_0 + ε) / (L_T + ε))`` (ε = :data:`EPSILON`; the ``+ε`` in the
-    numerator keeps an exact ``L_0 = 0`` finite).
-
-Horizon
-    ``T = max_i |E_i|`` steps: each step every agent with edges left processes one of them, so the
-    episode ends exactly when every local edge of every agent was processed once.
-
-Cost per step
-    Only what the move changes is evaluated: the ``D`` edge slots at the moved vertex (pose mode)
-    or the edges crossing the moved subtree's boundary (:func:`envs.basestep.boundary`), the moved
-    rows, the chosen edge's base step. The full observation stays O(V + E) (docs/environment.md).
+Horizon: ``T = max_i |E_i|`` steps, so the episode ends exactly when every local edge of every
+agent was processed once. Cost per step: only what the move changes is evaluated (the moved
+rows, the edges at the moved vertex or crossing the moved subtree's boundary,
+:func:`envs.basestep.boundary`, the chosen edge's base step); the full observation stays
+O(V + E) (docs/environment.md).
 """
 
 from __future__ import annotations
