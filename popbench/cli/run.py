@@ -22,6 +22,8 @@ import typer
 from popbench.choices import NOISES, PARTITIONS, ROBUST_KERNELS
 from popbench.cli import options
 from popbench.errors import PopbenchError, ValueRangeError
+from popbench.harness import defaults
+from popbench.harness.defaults import joined
 from popbench.harness.executors import Run
 
 app = typer.Typer(
@@ -57,22 +59,27 @@ def table1_command(
     *,
     datasets: str = typer.Option(
         None,
-        help="Datasets, registered names or .g2o paths (default: the paper's eight; --quick: mit).",
+        help="Datasets, registered names or .g2o paths (default: the paper's eight; "
+        f"--quick: {joined(defaults.TABLE1_QUICK['datasets'])}).",
         show_default=False,
     ),
     robots: str = typer.Option(
-        None, help="Team sizes (default: 3,7,35; --quick: 3).", show_default=False
+        None,
+        help=f"Team sizes (default: {joined(defaults.TABLE1_ROBOTS)}; "
+        f"--quick: {joined(defaults.TABLE1_QUICK['robots'])}).",
+        show_default=False,
     ),
     methods: str = typer.Option(
         None,
-        help="Methods (default: every registered method that is not centralised: "
-        "cc-pgo, ml-pgo, mm-pgo, prop-v1, prop-v2, local-lm).",
+        help="Methods (default: every registered method that is not centralised; "
+        "popbench solve --help lists them).",
         show_default=False,
     ),
     iterations: int = typer.Option(
         None,
         min=1,
-        help="Rounds for the iterative methods (default: 1000; --quick: 100).",
+        help=f"Rounds for the iterative methods (default: {defaults.ITERATIONS}; "
+        f"--quick: {defaults.TABLE1_QUICK['iterations']}).",
         show_default=False,
     ),
     seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
@@ -86,13 +93,16 @@ def table1_command(
     partition: str = typer.Option("metis", help="metis | contiguous."),
     out: Path = typer.Option(
         None,
-        help="Output folder (default: results/table1; --quick: results/table1-quick).",
+        help=f"Output folder (default: {defaults.TABLE1_OUT}; "
+        f"--quick: {defaults.TABLE1_QUICK['out']}).",
         show_default=False,
     ),
     quick: bool = typer.Option(
         False,
         "--quick",
-        help="A small subset (mit, n = 3, 100 iterations) that finishes in about a minute; "
+        help=f"A small subset ({joined(defaults.TABLE1_QUICK['datasets'])}, "
+        f"n = {joined(defaults.TABLE1_QUICK['robots'])}, "
+        f"{defaults.TABLE1_QUICK['iterations']} iterations) that finishes in about a minute; "
         "--datasets, --robots, --iterations and the other options given replace its defaults.",
     ),
     run: Run,
@@ -140,7 +150,8 @@ def outliers_command(
     rate: str = typer.Option(
         None,
         help="Outlier rates (fractions), e.g. 0.025,0.05,0.1: corrupt: of the candidate edges; "
-        "vertigo-*: added edges per loop closure of the graph (default: 0.1).",
+        f"vertigo-*: added edges per loop closure of the graph "
+        f"(default: {joined(defaults.OUTLIERS_RATES)}).",
         show_default=False,
     ),
     model: str = typer.Option(
@@ -161,11 +172,15 @@ def outliers_command(
         "true: score the dataset's own outliers (no injection; not with --rate, --model).",
         show_default=False,
     ),
-    datasets: str = typer.Option("intel,mit,csail", help="Datasets."),
-    methods: str = typer.Option("prop-v1,mm-pgo,gnc", help="Methods (need an inlier mask)."),
-    robots: int = typer.Option(7, min=1, help="Team size."),
-    seeds: str = typer.Option("0,1,2,3,4", help="Seeds: outlier draw and methods."),
-    iterations: options.Iterations = 1000,
+    datasets: str = typer.Option(joined(defaults.OUTLIERS_DATASETS), help="Datasets."),
+    methods: str = typer.Option(
+        joined(defaults.OUTLIERS_METHODS), help="Methods (need an inlier mask)."
+    ),
+    robots: int = typer.Option(defaults.OUTLIERS_ROBOTS, min=1, help="Team size."),
+    seeds: str = typer.Option(
+        joined(defaults.OUTLIERS_SEEDS), help="Seeds: outlier draw and methods."
+    ),
+    iterations: options.Iterations = defaults.ITERATIONS,
     kernel: str = typer.Option(
         None,
         help="mm-pgo robust kernel: huber | gm | welsch (default: its registry record's).",
@@ -179,7 +194,7 @@ def outliers_command(
         help="Edges that may be corrupted: loops (loop closures; odometry, incl. cut odometry, "
         "never) | paper (loop closures + every inter-robot edge: breaks the odometry start).",
     ),
-    out: options.Out = Path("results/outliers"),
+    out: options.Out = Path(defaults.OUTLIERS_OUT),
     run: Run,
 ) -> None:
     """The paper's Table II: F, outlier precision and recall with corrupted loop closures
@@ -203,7 +218,7 @@ def outliers_command(
         raise PopbenchError(f"--group-size is for --model vertigo-grouped, not {model}")
     config = OutliersConfig(
         datasets=options.names(datasets, None, "dataset"),
-        rates=options.rates(rate or "0.1"),
+        rates=options.rates(rate or joined(defaults.OUTLIERS_RATES)),
         methods=options.methods(methods),
         robots=robots,
         seeds=options.integers(seeds, "seed", 0),
@@ -220,6 +235,9 @@ def outliers_command(
     wrote(len(run_outliers(config, run)), "cells", config.out, files)
 
 
+SCALABILITY_ROBOTS = joined(defaults.SCALABILITY_ROBOTS)  # the command line's form
+
+
 @experiment(
     "scalability",
     "popbench run scalability                            # m3500, n = 1 … 70",
@@ -227,12 +245,12 @@ def outliers_command(
 )
 def scalability_command(
     *,
-    dataset: str = typer.Option("m3500", help="Dataset."),
-    robots: options.TeamSizes = "1,2,3,5,7,10,14,20,28,35,50,70",
-    methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods."),
-    iterations: options.Iterations = 1000,
+    dataset: str = typer.Option(defaults.SCALABILITY_DATASET, help="Dataset."),
+    robots: options.TeamSizes = SCALABILITY_ROBOTS,
+    methods: str = typer.Option(joined(defaults.SCALABILITY_METHODS), help="Methods."),
+    iterations: options.Iterations = defaults.ITERATIONS,
     init: options.Init = "odometry",
-    out: options.Out = Path("results/scalability"),
+    out: options.Out = Path(defaults.SCALABILITY_OUT),
     run: Run,
 ) -> None:
     """The paper's Fig. 5: F and time against team size, actors replicated.

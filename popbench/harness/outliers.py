@@ -38,7 +38,7 @@ import pandas as pd
 from popbench.datasets import file_sha256
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.harness import problems, reports
+from popbench.harness import defaults, problems, reports
 from popbench.harness.cache import grid_specs
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table2_cell
@@ -56,8 +56,7 @@ from popbench.outliers import (
     read_outlier_mask,
 )
 
-DATASETS = ("intel", "mit", "csail")
-METHODS = ("prop-v1", "mm-pgo", "gnc")  # the paper's Table II and GNC
+DATASETS, METHODS = defaults.OUTLIERS_DATASETS, defaults.OUTLIERS_METHODS
 MASK = "mask"  # the model of a dataset whose false loop closures a mask file names
 
 
@@ -66,18 +65,18 @@ class OutliersConfig:
     """What ``popbench run outliers`` computes."""
 
     datasets: tuple[str, ...] = DATASETS
-    rates: tuple[float, ...] = (0.1,)
+    rates: tuple[float, ...] = defaults.OUTLIERS_RATES
     methods: tuple[str, ...] = METHODS
-    robots: int = 7
-    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
-    iterations: int = 1000
+    robots: int = defaults.OUTLIERS_ROBOTS
+    seeds: tuple[int, ...] = defaults.OUTLIERS_SEEDS
+    iterations: int = defaults.ITERATIONS
     init: str = "odometry"
     kernel: str | None = None  # None: each method's registry record (outlier_options)
     candidates: str = "loops"
     model: str = CORRUPT  # popbench.outliers.OUTLIER_MODELS, or MASK (set by outlier_mask)
     group_size: int = DEFAULT_GROUP_SIZE  # vertigo-grouped only
     outlier_mask: Path | None = None  # a mask file: model MASK, one dataset, rates unused
-    out: Path = Path("results/outliers")
+    out: Path = Path(defaults.OUTLIERS_OUT)
 
     def __post_init__(self) -> None:
         if self.outlier_mask is not None:

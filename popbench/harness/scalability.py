@@ -12,28 +12,27 @@ from pathlib import Path
 
 import pandas as pd
 
-from popbench.harness import problems, table1
+from popbench.harness import defaults, problems, table1
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.profiles import HISTORY_FIELDS
 from popbench.harness.runner import run_experiment
 from popbench.plotting import pyplot, save_figure
 
-ROBOTS = (1, 2, 3, 5, 7, 10, 14, 20, 28, 35, 50, 70)
-METHODS = ("mm-pgo", "prop-v1", "prop-v2")  # the paper's Fig. 5
+ROBOTS, METHODS = defaults.SCALABILITY_ROBOTS, defaults.SCALABILITY_METHODS
 
 
 @dataclasses.dataclass(frozen=True)
 class ScalabilityConfig:
     """What ``popbench run scalability`` computes."""
 
-    dataset: str = "m3500"
+    dataset: str = defaults.SCALABILITY_DATASET
     robots: tuple[int, ...] = ROBOTS
     methods: tuple[str, ...] = METHODS
-    iterations: int = 1000
+    iterations: int = defaults.ITERATIONS
     seed: int = 0
     init: str = "odometry"
     partition: str = "metis"
-    out: Path = Path("results/scalability")
+    out: Path = Path(defaults.SCALABILITY_OUT)
 
 
 def cell_specs(config: ScalabilityConfig) -> list[Spec]:

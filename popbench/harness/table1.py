@@ -20,7 +20,7 @@ import pandas as pd
 
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.harness import problems, profiles, reports
+from popbench.harness import defaults, problems, profiles, reports
 from popbench.harness.cache import grid_specs, provenance
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table1_cell
@@ -29,17 +29,11 @@ from popbench.harness.refining import solve_cell
 from popbench.harness.runner import run_experiment
 from popbench.methods import METHODS, Budget, Result, distributed_methods
 
-DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
-ROBOTS = (3, 7, 35)
+DATASETS, ROBOTS = defaults.TABLE1_DATASETS, defaults.TABLE1_ROBOTS
 # Methods computed at some team sizes only: the warm-started mm-pgo rows (popbench.warm_start)
 # at n = 7, which keeps a fresh `make run` within its 10 minutes (docs/harness.md).
 METHOD_ROBOTS: dict[str, tuple[int, ...]] = {"prop-v1+mm-pgo": (7,), "local-lm+mm-pgo": (7,)}
-QUICK = {
-    "datasets": ("mit",),
-    "robots": (3,),
-    "iterations": 100,
-    "out": Path("results/table1-quick"),
-}
+QUICK = {**defaults.TABLE1_QUICK, "out": Path(defaults.TABLE1_QUICK["out"])}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,13 +44,13 @@ class Table1Config:
     robots: tuple[int, ...] = ROBOTS
     # default: every registered method that is not centralised (the paper's five, local-lm)
     methods: tuple[str, ...] = dataclasses.field(default_factory=distributed_methods)
-    iterations: int = 1000
+    iterations: int = defaults.ITERATIONS
     seeds: tuple[int, ...] = (0,)
     # the learned methods' actors: one cell per training seed (MethodRecord.seed_checkpoints)
     training_seeds: tuple[int, ...] = (0,)
     init: str = "odometry"
     partition: str = "metis"
-    out: Path = Path("results/table1")
+    out: Path = Path(defaults.TABLE1_OUT)
     # the team sizes a method is restricted to (the others: every size of `robots`)
     method_robots: dict[str, tuple[int, ...]] = dataclasses.field(
         default_factory=lambda: dict(METHOD_ROBOTS)
