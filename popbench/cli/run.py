@@ -47,6 +47,13 @@ def wrote(count: int, what: str, out: Path, files: str) -> None:
     typer.echo(f"{count} {what} -> {out}/{files}")
 
 
+def with_quick(what: str, default: object, quick: str) -> str:
+    """An option's help with its default and its --quick value (popbench.harness.defaults)."""
+    value = defaults.TABLE1_QUICK[quick]
+    shown = joined(value) if isinstance(value, tuple) else value
+    return f"{what} (default: {default}; --quick: {shown})."
+
+
 @experiment(
     "table1",
     "popbench run table1 --quick                      # mit, n = 3, 100 rounds",
@@ -59,14 +66,12 @@ def table1_command(
     *,
     datasets: str = typer.Option(
         None,
-        help="Datasets, registered names or .g2o paths (default: the paper's eight; "
-        f"--quick: {joined(defaults.TABLE1_QUICK['datasets'])}).",
+        help=with_quick("Datasets, registered names or .g2o paths", "the paper's 8", "datasets"),
         show_default=False,
     ),
     robots: str = typer.Option(
         None,
-        help=f"Team sizes (default: {joined(defaults.TABLE1_ROBOTS)}; "
-        f"--quick: {joined(defaults.TABLE1_QUICK['robots'])}).",
+        help=with_quick("Team sizes", joined(defaults.TABLE1_ROBOTS), "robots"),
         show_default=False,
     ),
     methods: str = typer.Option(
@@ -78,8 +83,7 @@ def table1_command(
     iterations: int = typer.Option(
         None,
         min=1,
-        help=f"Rounds for the iterative methods (default: {defaults.ITERATIONS}; "
-        f"--quick: {defaults.TABLE1_QUICK['iterations']}).",
+        help=with_quick("Rounds for the iterative methods", defaults.ITERATIONS, "iterations"),
         show_default=False,
     ),
     seeds: str = typer.Option("0", help="Seeds (partition, lifting, sampling)."),
@@ -93,8 +97,7 @@ def table1_command(
     partition: str = typer.Option("metis", help="metis | contiguous."),
     out: Path = typer.Option(
         None,
-        help=f"Output folder (default: {defaults.TABLE1_OUT}; "
-        f"--quick: {defaults.TABLE1_QUICK['out']}).",
+        help=with_quick("Output folder", defaults.TABLE1_OUT, "out"),
         show_default=False,
     ),
     quick: bool = typer.Option(
