@@ -75,7 +75,6 @@ def solve(
     weight_interval: int = 20,
     hessian_interval: int = 10,
     hessian_tolerance: float = 0.02,
-    seed: int = 0,
     **_: object,
 ) -> Result:
     """Run (A)MM-PGO on ``problem`` (see the module docstring).
@@ -98,7 +97,7 @@ def solve(
         hessian_tolerance: the largest relative change of an edge's Jacobian (see
             :meth:`TeamSystem.hessian_drift`) tolerated before ``H_α`` is refactorised; 0: at every
             check.
-        seed: unused (the method is deterministic); accepted for the common interface.
+        _: options of other methods (``seed``, ...), ignored: MM-PGO is deterministic.
 
     **Accounting.** One *iteration* = every robot updates once (in parallel). ``wall_s`` = the whole
     run in this process (set-up, initialisation, logging). ``parallel_s`` is a **model** of the
@@ -114,7 +113,6 @@ def solve(
     computes anyway (no extra evaluation); ``history_s[k]`` = ``parallel_s`` after the set-up and
     ``k`` iterations (its last entry ``parallel_s``).
     """
-    del seed
     start = time.perf_counter()
     budget = budget or Budget()
     robust.check_kernel(kernel)
