@@ -139,6 +139,17 @@ class Linearisation(NamedTuple):
     jac_head: np.ndarray
 
 
+def _rotated_residuals(
+    graph: PoseGraph, poses: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The residuals of eq. 1 ``(M, 3)``, ``R_pᵀ`` ``(M, 2, 2)`` and ``∂r_t/∂θ_p =
+    −J R_pᵀ (t_q − t_p)`` ``(M, 2)``: what both linearisations start from."""
+    rot_t = np.swapaxes(se2.rotation(poses[graph.tails, 2]), -1, -2)  # R_pᵀ
+    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
+    d_theta_p = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
+    return residuals(graph, poses), rot_t, d_theta_p
+
+
 def linearise(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisation:
     """Whitened residuals of eq. 1 and their analytic Jacobians (additive pose increments).
 
@@ -146,14 +157,9 @@ def linearise(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisatio
     ``∂r_θ/∂θ_p = −1``, ``∂r_θ/∂θ_q = 1``, with ``J = R(π/2)``.
     """
     poses = graph.poses if poses is None else poses
-    r = residuals(graph, poses)
+    r, rot_t, d_theta_p = _rotated_residuals(graph, poses)
     kappa, tau = weights(graph.information)
     sqrt_tau, sqrt_kappa = np.sqrt(tau), np.sqrt(kappa)
-    theta_p = poses[graph.tails, 2]
-    rot_t = np.swapaxes(se2.rotation(theta_p), -1, -2)  # R_pᵀ, (M, 2, 2)
-    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
-    d_theta_p = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
-
     m = graph.num_edges
     jac_tail = np.zeros((m, 3, 3))
     jac_head = np.zeros((m, 3, 3))
@@ -174,11 +180,7 @@ def linearise_chi2(graph: PoseGraph, poses: np.ndarray | None = None) -> Lineari
     are those of :func:`linearise` before whitening.
     """
     poses = graph.poses if poses is None else poses
-    r = residuals(graph, poses)
-    theta_p = poses[graph.tails, 2]
-    rot_t = np.swapaxes(se2.rotation(theta_p), -1, -2)  # R_pᵀ, (M, 2, 2)
-    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
-    d_theta_p = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
+    r, rot_t, d_theta_p = _rotated_residuals(graph, poses)
     m = graph.num_edges
     jac_tail = np.zeros((m, 3, 3))
     jac_head = np.zeros((m, 3, 3))
