@@ -138,7 +138,9 @@ class MethodRecord:
         has_inlier_mask: its ``Result.inlier_mask`` flags outliers (Table II's methods).
         outlier_options: the options Table II (``popbench run outliers``) runs it with, as
             ``(name, value)`` pairs; the table names them beside the method (mm-pgo: the kernel
-            and robust mode chosen by the rule in docs/outliers.md).
+            and robust mode chosen by the rule in docs/outliers.md; prop-v1: the actor of the
+            recipe trained with outliers, whose fitted outlier gate flags them, as
+            ``("checkpoint", "package:relative/path")``, its sha256 keying Table II's cells).
         learned: it runs a trained policy (``checkpoint`` holds it).
         centralised: it solves the whole graph in one process, whatever the robots (a
             reference, not one of Table I's distributed methods).
@@ -186,12 +188,17 @@ class MethodRecord:
         if training_seed not in self.training_seeds:
             allowed = ", ".join(map(str, self.training_seeds))
             raise ValueRangeError(f"training seed of {self.name}", training_seed, allowed)
-        named = (self.checkpoint, *self.seed_checkpoints)[training_seed]
-        package, separator, relative = named.partition(":")
-        if not separator:
-            return Path(named).expanduser()
-        folder = package_folder(package)
-        return None if folder is None else folder / relative
+        return named_path((self.checkpoint, *self.seed_checkpoints)[training_seed])
+
+
+def named_path(named: str) -> Path | None:
+    """A ``"package:relative/path"`` resolved against the package's folder without importing
+    it, or a plain path; None where there is no such package."""
+    package, separator, relative = named.partition(":")
+    if not separator:
+        return Path(named).expanduser()
+    folder = package_folder(package)
+    return None if folder is None else folder / relative
 
 
 def package_folder(name: str) -> Path | None:
@@ -208,8 +215,11 @@ def package_folder(name: str) -> Path | None:
 
 # The n = 7 V2 actor (any n): the cpu-residual recipe's (imitation, then GA-SAC with the KL
 # anchor), seed 0, chosen on the held-out protocol (docs/training.md, "The default actor"), and
-# the same recipe's training seeds 1 and 2.
+# the same recipe's training seeds 1 and 2. Table II's problems have outliers: there prop-v1
+# runs the actor of the recipe trained with them (cpu-imitation-robust), whose fitted outlier
+# gate flags them (docs/outliers.md, "The outlier gate after the consensus").
 ACTOR_CHECKPOINT = "agents:checkpoints/actor-V2-n7-residual.pt"
+OUTLIER_ACTOR_CHECKPOINT = "agents:checkpoints/imitation-V2-n7-robust.pt"
 ACTOR_SEED_CHECKPOINTS = tuple(
     f"agents:checkpoints/actor-V2-n7-residual-s{seed}.pt" for seed in (1, 2)
 )
@@ -246,6 +256,7 @@ METHODS: dict[str, MethodRecord] = {
             checkpoint=ACTOR_CHECKPOINT,
             seed_checkpoints=ACTOR_SEED_CHECKPOINTS,
             has_inlier_mask=True,
+            outlier_options=(("checkpoint", OUTLIER_ACTOR_CHECKPOINT),),
             learned=True,
             episodic=True,
         ),

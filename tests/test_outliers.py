@@ -232,3 +232,21 @@ def test_outlier_mask_file(tmp_path):
     path.write_text("0\n1\n2\n")
     with pytest.raises(DataFormatError, match=r"m\.mask:3: outlier mask value '2': allowed 0 or 1"):
         read_outlier_mask(path, 3)
+
+
+def test_table_ii_runs_prop_v1_with_the_outlier_trained_actor_and_keys_cells_by_it():
+    from popbench.datasets import file_sha256
+    from popbench.harness.outliers import OutliersConfig, cell_specs
+    from popbench.methods import OUTLIER_ACTOR_CHECKPOINT, method_record, named_path
+
+    specs = cell_specs(OutliersConfig(datasets=("intel",), seeds=(0,)))
+    learned = [spec for spec in specs if spec["method"] == "prop-v1"]
+    assert learned, "Table II has a prop-v1 row"
+    path = named_path(OUTLIER_ACTOR_CHECKPOINT)
+    assert path is not None and path.is_file()
+    assert path != method_record("prop-v1").checkpoint_path()  # not Table I's actor
+    for spec in learned:
+        assert spec["options"]["checkpoint"] == OUTLIER_ACTOR_CHECKPOINT
+        assert spec["checkpoint_sha256"] == file_sha256(path)
+    others = [spec for spec in specs if spec["method"] != "prop-v1"]
+    assert all("checkpoint" not in spec["options"] for spec in others)

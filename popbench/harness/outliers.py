@@ -44,7 +44,7 @@ from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table2_cell
 from popbench.harness.runner import run_experiment
 from popbench.initial import with_start
-from popbench.methods import Budget, get_method, method_options, method_record
+from popbench.methods import Budget, get_method, method_options, method_record, named_path
 from popbench.objective import objective
 from popbench.outliers import (
     CORRUPT,
@@ -108,6 +108,8 @@ def cell_specs(config: OutliersConfig) -> list[Spec]:
     specs = grid_specs("outliers", axes, shared)
     for spec in specs:
         spec["options"] = method_outlier_options(spec["method"], config.kernel)
+        if "checkpoint" in spec["options"]:  # Table II's actor: its file keys the cell
+            spec["checkpoint_sha256"] = file_sha256(named_path(spec["options"]["checkpoint"]))
     return specs
 
 
@@ -187,6 +189,8 @@ def compute_cell(spec: Spec) -> dict[str, Any]:
         spec.get("outlier_mask"),
     )
     options: dict[str, Any] = {"seed": spec["seed"], **spec["options"]}
+    if "checkpoint" in options:
+        options["checkpoint"] = str(named_path(options["checkpoint"]))
     result = get_method(spec["method"])(problem, Budget(iterations=spec["iterations"]), **options)
     among = candidate_mask(problem.graph, candidates)
     outliers = int((problem.outlier_mask & among).sum())
