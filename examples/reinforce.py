@@ -2,8 +2,8 @@
 
 The env comes from ``envs.make_torchrl_env``, the hybrid action's distribution from
 ``agents.HybridActionDistribution``, everything else from TorchRL (``TensorDictModule``,
-``ProbabilisticActor``, ``env.rollout``: TorchRL's ``Collector`` kept a stale action mask on
-2026-12-04, docs/algorithms.md). The policy scores every edge from its own features
+``ProbabilisticActor``, ``env.rollout``; a ``Collector`` works as well, docs/environment.md).
+The policy scores every edge from its own features
 and its endpoints' (no message passing: a deliberately small model). Train, then score it on
 the held-out problems as the shipped rows are scored (docs/algorithms.md)::
 
