@@ -52,7 +52,13 @@ PADDING_MARGIN = 1.25
 # over the 32 probes 128 (2026-12-04); 512 probes cover that tail.
 SLAM_PROBE_PROBLEMS = 512
 
-__all__ = ["make_problem_source", "make_pettingzoo_env", "make_torchrl_env", "task_options"]
+__all__ = [
+    "edge_mask_transform",
+    "make_problem_source",
+    "make_pettingzoo_env",
+    "make_torchrl_env",
+    "task_options",
+]
 
 
 def make_problem_source(
@@ -246,3 +252,12 @@ def make_pettingzoo_env(
     source, dims, has_truth = make_problem_source(robots, noise, **source_options)
     env_options.setdefault("reward", "localisation" if has_truth else "F")
     return PGOParallelEnv(source, robots, dims, seed, **env_options)
+
+
+def edge_mask_transform() -> Any:
+    """The transform a ``SerialEnv`` / ``ParallelEnv`` of these envs takes over it, so that its
+    action spec carries the workers' live edge masks (TorchRL's ``ActionMask`` pattern;
+    :func:`envs.torchrl_env.edge_mask_transform`, docs/environment.md)."""
+    from envs.torchrl_env import edge_mask_transform as make
+
+    return make()

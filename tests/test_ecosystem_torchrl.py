@@ -16,8 +16,8 @@ from torchrl.envs import Compose, ParallelEnv, RewardSum, SerialEnv, StepCounter
 from torchrl.envs.utils import check_env_specs
 
 from agents.config import CPU_RESIDUAL
-from envs import make_torchrl_env
-from envs.torchrl_env import ACTION_MASK_KEY, EDGE_ACTION_KEY, edge_mask_transform
+from envs import edge_mask_transform, make_torchrl_env
+from envs.torchrl_env import ACTION_MASK_KEY, EDGE_ACTION_KEY
 from popbench.errors import ValueRangeError
 
 SMALL = {"robots": 3, "poses_per_robot": 12}
