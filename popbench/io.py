@@ -1,10 +1,8 @@
-"""Read and write planar pose graphs: g2o (``VERTEX_SE2``/``EDGE_SE2``) and TORO
-(``VERTEX2``/``EDGE2``).
+"""Read planar pose graphs: g2o (``VERTEX_SE2``/``EDGE_SE2``) and TORO (``VERTEX2``/``EDGE2``).
 
-g2o edge: ``EDGE_SE2 i j dx dy dθ I11 I12 I13 I22 I23 I33`` (upper triangle, (x, y, θ) order).
-TORO edge: ``EDGE2 i j dx dy dθ I11 I12 I22 I33 I13 I23``; TORO's translation error is not in
-the measurement frame, so the cost-preserving conversion is ``Λ_g2o = Bᵀ Λ_TORO B`` with
-``B = blkdiag(R(θ̃), 1)``.
+The line layouts and TORO's information conversion are :mod:`popbench.io_format`, the value
+ranges refused at load :mod:`popbench.io_limits`, the writers :mod:`popbench.io_write`; their
+public names are importable from here too (``from popbench.io import write_g2o``).
 
 TORO ``EQUIV i j`` (as in Olson's ``w10000.graph``) declares vertices ``i`` and ``j`` to be the
 same pose. They are merged, not tied by a tight edge: an infinitely stiff constraint is exactly
@@ -34,26 +32,62 @@ from typing import NamedTuple
 import numpy as np
 
 from popbench import se2
-from popbench.errors import DataFormatError, ValueRangeError
+from popbench.errors import DataFormatError
 from popbench.graph import (
-    EdgeKind,
     PoseGraph,
     make_graph,
     odometry_composition,
     unconnected_vertices,
 )
+from popbench.io_format import (
+    EQUIV_TAG,
+    FIELDS,
+    FIX_TAG,
+    FORMAT_OF_TAG,
+    FORMATS,
+    MAX_VERTEX_ID,
+    information_matrices,
+)
+from popbench.io_limits import (
+    COORDINATE_LIMIT,
+    INFORMATION_RANGE,
+    INFORMATION_SPREAD,
+    check_coordinates,
+    check_information,
+)
+from popbench.io_write import (
+    FLAGS_HEADER,
+    GRAPH_WRITERS,
+    file_ids,
+    graph_writer,
+    tum_rounded,
+    write_flags,
+    write_g2o,
+    write_solution,
+    write_toro,
+    write_tum,
+)
 
-_FORMATS = {
-    # format: (vertex tag, edge tag)
-    "g2o": ("VERTEX_SE2", "EDGE_SE2"),
-    "toro": ("VERTEX2", "EDGE2"),
-}
-# Upper-triangle (row, col) of each of the six information numbers, per format.
-_G2O_ENTRIES = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
-_TORO_ENTRIES = [(0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2)]
-# The pose-graph tags of each format: one of them in a file of the other format is refused
-# (a mixed file), never skipped.
-_FORMAT_OF_TAG = {"VERTEX_SE2": "g2o", "EDGE_SE2": "g2o", "VERTEX2": "toro", "EDGE2": "toro"}
+__all__ = [
+    "COORDINATE_LIMIT",
+    "FLAGS_HEADER",
+    "GRAPH_WRITERS",
+    "INFORMATION_RANGE",
+    "INFORMATION_SPREAD",
+    "MAX_VERTEX_ID",
+    "ReadWarning",
+    "detect_format",
+    "file_ids",
+    "graph_writer",
+    "read_graph",
+    "read_vertices",
+    "tum_rounded",
+    "write_flags",
+    "write_g2o",
+    "write_solution",
+    "write_toro",
+    "write_tum",
+]
 
 
 class ReadWarning(UserWarning):
@@ -82,22 +116,6 @@ def _wrap_out_of_range(theta: np.ndarray) -> np.ndarray:
     return np.where((theta >= -np.pi) & (theta < np.pi), theta, se2.wrap(theta))
 
 
-# Field names after the tag, per tag (for messages).
-_FIELDS = {
-    "VERTEX_SE2": ("id", "x", "y", "theta"),
-    "VERTEX2": ("id", "x", "y", "theta"),
-    "EDGE_SE2": ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I13", "I22", "I23", "I33"),
-    "EDGE2": ("i", "j", "dx", "dy", "dtheta", "I11", "I12", "I22", "I33", "I13", "I23"),
-    "EQUIV": ("i", "j"),
-}
-# TORO: ``EQUIV i j`` declares vertices i and j the same pose (merged on reading).
-_EQUIV_TAG = "EQUIV"
-# g2o: ``FIX id…`` holds those poses fixed (also read in TORO files, where popbench writes it).
-_FIX_TAG = "FIX"
-# Vertex ids are unsigned 64-bit integers written in decimal digits (GTSAM keys, ``Symbol``s).
-MAX_VERTEX_ID = 2**64 - 1
-
-
 def _parse_id(path: Path, lineno: int, tag: str, field: str, token: str) -> int:
     """The vertex id ``token`` of field ``field`` as an exact int in ``0 … MAX_VERTEX_ID``."""
     if token.isdigit() and token.isascii():
@@ -119,7 +137,7 @@ def _parse_line(
         raise DataFormatError(
             path, lineno, f"{tag} needs {count - 1} values after the tag, found {len(tokens) - 1}"
         )
-    fields = _FIELDS[tag]
+    fields = FIELDS[tag]
     id_count = 1 if tag.startswith("VERTEX") else 2
     try:
         values = [float(token) for token in tokens[1 + id_count :]]
@@ -131,7 +149,7 @@ def _parse_line(
     if id_count == 2 and ids[0] == ids[1]:
         why = (
             "an EQUIV line names two different vertices"
-            if tag == _EQUIV_TAG
+            if tag == EQUIV_TAG
             else ("pose-graph edges join two different poses")
         )
         message = f"{tag} joins vertex {ids[0]} to itself ({why})"
@@ -141,7 +159,7 @@ def _parse_line(
 
 def _refuse_numbers(path: Path, lineno: int, tokens: list[str], tag: str, id_count: int) -> None:
     """Raise the DataFormatError for the first number of the line that is not a finite float."""
-    fields, count = _FIELDS[tag], len(tokens) - 1
+    fields, count = FIELDS[tag], len(tokens) - 1
     for k in range(id_count, count):
         token = tokens[k + 1]
         where = f"{tag} field {fields[k]} (value {k + 1} of {count})"
@@ -171,11 +189,11 @@ class _Lines(NamedTuple):
 
 
 def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
-    vertex_tag, edge_tag = _FORMATS[fmt]
+    vertex_tag, edge_tag = FORMATS[fmt]
     # tag → (kind, tokens per line); EQUIV is a TORO tag only.
     kinds = {vertex_tag: ("vertex", 5), edge_tag: ("edge", 12)}
     if fmt == "toro":
-        kinds[_EQUIV_TAG] = ("equiv", 3)
+        kinds[EQUIV_TAG] = ("equiv", 3)
     ids: dict[str, list[list[int]]] = {"vertex": [], "edge": [], "equiv": [], "fix": []}
     numbers: dict[str, list[list[float]]] = {"vertex": [], "edge": [], "equiv": []}
     line_numbers: dict[str, list[int]] = {"vertex": [], "edge": [], "equiv": [], "fix": []}
@@ -195,13 +213,13 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
                         ids[kind].append(line_ids)
                         numbers[kind].append(values)
                     line_numbers[kind].append(lineno)
-                elif tag == _FIX_TAG:
+                elif tag == FIX_TAG:
                     if len(tokens) < 2:
                         raise DataFormatError(path, lineno, "FIX needs at least one vertex id")
                     ids["fix"].extend([_parse_id(path, lineno, tag, "id", t)] for t in tokens[1:])
                     line_numbers["fix"].extend([lineno] * (len(tokens) - 1))
-                elif tag in _FORMAT_OF_TAG or tag == _EQUIV_TAG:
-                    other = _FORMAT_OF_TAG.get(tag, "toro")
+                elif tag in FORMAT_OF_TAG or tag == EQUIV_TAG:
+                    other = FORMAT_OF_TAG.get(tag, "toro")
                     raise DataFormatError(
                         path,
                         lineno,
@@ -291,7 +309,7 @@ def _equivalence_map(path: Path, lines: _Lines, ids: np.ndarray) -> np.ndarray |
     if not lines.equivs.size:
         return None
     missing = "which is not in the graph"
-    equivs = _indices(path, _EQUIV_TAG, missing, ids, lines.equivs, lines.equiv_lines)
+    equivs = _indices(path, EQUIV_TAG, missing, ids, lines.equivs, lines.equiv_lines)
     root = np.arange(ids.size)
 
     def find(v: int) -> int:
@@ -338,23 +356,23 @@ def read_graph(path: str | Path, name: str | None = None) -> PoseGraph:
     """
     path = Path(path)
     fmt = detect_format(path)
-    vertex_tag, edge_tag = _FORMATS[fmt]
+    vertex_tag, edge_tag = FORMATS[fmt]
     lines = _scan(path, fmt)
     if not lines.edges.size:
         raise DataFormatError(path, 0, f"no {edge_tag} lines: not a {fmt} pose graph")
     measurements = lines.edges[:, :3].copy()
     measurements[:, 2] = _wrap_out_of_range(measurements[:, 2])
     with np.errstate(over="ignore", invalid="ignore"):  # overflow: refused just below
-        information = _information(lines.edges[:, 3:], fmt, measurements[:, 2])
-    _check_information(path, information, lines.edge_lines)
-    _check_coordinates(path, lines)
+        information = information_matrices(lines.edges[:, 3:], fmt, measurements[:, 2])
+    check_information(path, information, lines.edge_lines)
+    check_coordinates(path, lines)
 
     ids, poses = _vertex_table(path, lines)
     missing = f"which has no {vertex_tag} line"
     ends = _indices(path, edge_tag, missing, ids, lines.edge_ids, lines.edge_lines)
     tails, heads = ends[:, 0], ends[:, 1]
     missing = "which is not in the graph"
-    fixed = _indices(path, _FIX_TAG, missing, ids, lines.fixes, lines.fix_lines)
+    fixed = _indices(path, FIX_TAG, missing, ids, lines.fixes, lines.fix_lines)
     new_id = _equivalence_map(path, lines, ids)
     if new_id is not None:
         tails, heads, fixed = new_id[tails], new_id[heads], new_id[fixed]
@@ -395,7 +413,7 @@ def _warn_skipped(path: Path, skipped: dict[str, int], fmt: str) -> None:
     counts = ", ".join(
         f"{tag if tag.isprintable() else repr(tag)} ×{count}" for tag, count in skipped.items()
     )
-    read = " ".join([*_FORMATS[fmt], _FIX_TAG] + ([_EQUIV_TAG] if fmt == "toro" else []))
+    read = " ".join([*FORMATS[fmt], FIX_TAG] + ([EQUIV_TAG] if fmt == "toro" else []))
     warnings.warn(
         f"{path}: skipped {sum(skipped.values())} line(s) of kinds popbench does not model "
         f"({counts}); it reads {read} (see docs/io.md)",
@@ -442,254 +460,7 @@ def read_vertices(path: str | Path) -> np.ndarray:
     fmt = detect_format(path)
     lines = _scan(path, fmt, parse_edges=False)
     if not lines.vertices.size:
-        raise DataFormatError(path, 0, f"no {_FORMATS[fmt][0]} lines")
+        raise DataFormatError(path, 0, f"no {FORMATS[fmt][0]} lines")
     ids, poses = _vertex_table(path, lines)
     new_id = _equivalence_map(path, lines, ids)
     return poses if new_id is None else _kept(poses, new_id)
-
-
-def _information(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.ndarray:
-    entries = _G2O_ENTRIES if fmt == "g2o" else _TORO_ENTRIES
-    information = np.zeros((values.shape[0], 3, 3))
-    for k, (row, col) in enumerate(entries):
-        information[:, row, col] = values[:, k]
-        information[:, col, row] = values[:, k]
-    if fmt == "toro":
-        b = np.zeros_like(information)
-        b[:, :2, :2] = se2.rotation(theta)
-        b[:, 2, 2] = 1.0
-        information = np.swapaxes(b, 1, 2) @ information @ b
-    return information
-
-
-# Magnitudes the solvers are known to handle (docs/solve.md, "Refused input"): beyond them a file is
-# refused at load with its line, not left to fail inside a factorisation.
-COORDINATE_LIMIT = 1e9  # |x|, |y| of a VERTEX line and |dx|, |dy| of an edge [m]
-INFORMATION_RANGE = (1e-100, 1e100)  # every eigenvalue of every information matrix
-INFORMATION_SPREAD = 1e15  # largest / smallest eigenvalue over the whole graph
-
-
-def _check_coordinates(path: Path, lines: _Lines) -> None:
-    """Every translation (VERTEX x, y; edge dx, dy) within ``±COORDINATE_LIMIT`` metres."""
-    for rows, columns, numbers, what in (
-        (lines.vertices, [0, 1], lines.vertex_lines, "pose coordinate"),
-        (lines.edges, [0, 1], lines.edge_lines, "measured translation"),
-    ):
-        bad = np.flatnonzero((np.abs(rows[:, columns]) > COORDINATE_LIMIT).any(axis=1))
-        if bad.size:
-            k = int(bad[0])
-            value = rows[k, columns][np.argmax(np.abs(rows[k, columns]))]
-            raise DataFormatError(
-                path,
-                int(numbers[k]),
-                f"{what} {value:.3g} m is out of range (allowed ±{COORDINATE_LIMIT:.0e} m)",
-            )
-
-
-def _check_information(path: Path, information: np.ndarray, lines: np.ndarray) -> None:
-    """Every information matrix positive definite with eigenvalues in
-    :data:`INFORMATION_RANGE`, and their spread over the graph (largest / smallest) at most
-    :data:`INFORMATION_SPREAD` (beyond it the weakest edges are below double-precision
-    round-off of the strongest in the normal equations, and factorisations fail)."""
-    overflow = np.flatnonzero(~np.isfinite(information).all(axis=(1, 2)))  # TORO's rotation
-    if overflow.size:
-        high = f"{INFORMATION_RANGE[1]:.0e}"
-        message = f"information matrix overflows (allowed eigenvalues up to {high})"
-        raise DataFormatError(path, lines[int(overflow[0])], message)
-    eigenvalues = np.linalg.eigvalsh(information)
-    smallest, largest = eigenvalues[:, 0], eigenvalues[:, -1]
-    bad = np.flatnonzero(~(smallest > 0.0))  # ~(> 0): NaN fails too
-    if bad.size:
-        k = int(bad[0])
-        raise DataFormatError(
-            path,
-            lines[k],
-            f"information matrix is not positive definite "
-            f"(smallest eigenvalue {eigenvalues[k, 0]:.3g})",
-        )
-    low, high = INFORMATION_RANGE
-    bad = np.flatnonzero(~((smallest >= low) & (largest <= high)))
-    if bad.size:
-        k = int(bad[0])
-        value = smallest[k] if not smallest[k] >= low else largest[k]
-        raise DataFormatError(
-            path,
-            lines[k],
-            f"information matrix eigenvalue {value:.3g} is out of range "
-            f"(allowed {low:.0e} to {high:.0e})",
-        )
-    weakest, strongest = int(np.argmin(smallest)), int(np.argmax(largest))
-    spread = largest[strongest] / smallest[weakest]
-    if spread > INFORMATION_SPREAD:
-        raise DataFormatError(
-            path,
-            lines[strongest],
-            f"information spans {spread:.3g} (eigenvalue {largest[strongest]:.3g} here, "
-            f"{smallest[weakest]:.3g} on line {lines[weakest]}); allowed at most "
-            f"{INFORMATION_SPREAD:.0e}: the weaker edges would be below round-off",
-        )
-
-
-def _savetxt(handle, rows: np.ndarray, fmt: list[str] | str, delimiter: str = " ") -> None:
-    """``np.savetxt`` of ``rows`` (nothing for zero rows: savetxt would write one empty line)."""
-    if rows.shape[0]:
-        np.savetxt(handle, rows, fmt=fmt, delimiter=delimiter)
-
-
-def _rows(*columns: np.ndarray) -> np.ndarray:
-    """``(R, C)`` object array of ``columns`` (each ``(R,)`` or ``(R, k)``), so that ids stay
-    exact uint64 integers next to float64 numbers when :func:`_savetxt` formats them."""
-    blocks = [np.asarray(column).reshape(len(column), -1) for column in columns]
-    table = np.empty((len(columns[0]), sum(block.shape[1] for block in blocks)), dtype=object)
-    start = 0
-    for block in blocks:
-        table[:, start : start + block.shape[1]] = block
-        start += block.shape[1]
-    return table
-
-
-def file_ids(graph: PoseGraph) -> np.ndarray:
-    """``(N,)`` uint64 id of each vertex as its file wrote it (``0 … N−1`` for a graph without
-    ``vertex_ids``)."""
-    if graph.vertex_ids is None:
-        return np.arange(graph.num_poses, dtype=np.uint64)
-    return np.asarray(graph.vertex_ids, dtype=np.uint64)
-
-
-def _write_graph(
-    graph: PoseGraph, path: str | Path, poses: np.ndarray, tags: tuple[str, str], entries
-) -> None:
-    """VERTEX lines (the file's ids, ``poses``), EDGE lines (the ids of their ends, the
-    measurement, the six ``entries`` ``(M, 6)``), then one ``FIX id`` line per fixed pose:
-    last, because GTSAM's ``readG2o`` stops reading at a tag it does not know (gtsam 4.3: the
-    edges after a FIX line were lost), while g2o and popbench read FIX anywhere."""
-    ids = file_ids(graph)
-    vertex_tag, edge_tag = tags
-    with Path(path).open("w") as handle:
-        _savetxt(handle, _rows(ids, poses), [f"{vertex_tag} %d"] + ["%.17g"] * 3)
-        edges = _rows(ids[graph.tails], ids[graph.heads], graph.measurements, entries)
-        _savetxt(handle, edges, [f"{edge_tag} %d", "%d"] + ["%.17g"] * 9)
-        if graph.fixed is not None:
-            _savetxt(handle, _rows(ids[graph.fixed]), f"{_FIX_TAG} %d")
-
-
-def write_g2o(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = None) -> None:
-    """Write ``graph`` (with ``poses`` as the VERTEX lines, default the graph's) as g2o, with
-    the file's own vertex ids (:func:`file_ids`) and its FIX lines."""
-    rows, cols = zip(*_G2O_ENTRIES, strict=True)
-    upper = graph.information[:, list(rows), list(cols)]
-    poses = graph.poses if poses is None else poses
-    _write_graph(graph, path, poses, _FORMATS["g2o"], upper)
-
-
-def write_toro(graph: PoseGraph, path: str | Path, poses: np.ndarray | None = None) -> None:
-    """Write ``graph`` (with ``poses`` as the VERTEX2 lines, default the graph's) as TORO: the
-    information is rotated back into TORO's frame, ``Λ_TORO = B Λ_g2o Bᵀ`` with
-    ``B = blkdiag(R(θ̃), 1)`` (the inverse of the reader's conversion), so the file reads back to
-    the same graph up to rounding (≈ 1e-16 relative in Λ). Ids and FIX lines as
-    :func:`write_g2o` (TORO has no FIX tag; popbench reads it back)."""
-    b = np.zeros_like(graph.information)
-    b[:, :2, :2] = se2.rotation(graph.measurements[:, 2])
-    b[:, 2, 2] = 1.0
-    toro = b @ graph.information @ np.swapaxes(b, 1, 2)
-    rows, cols = zip(*_TORO_ENTRIES, strict=True)
-    entries = toro[:, list(rows), list(cols)]
-    poses = graph.poses if poses is None else poses
-    _write_graph(graph, path, poses, _FORMATS["toro"], entries)
-
-
-# Suffix of an output graph file → its writer (the reader detects the same suffixes).
-GRAPH_WRITERS = {".g2o": write_g2o, ".graph": write_toro}
-
-
-def write_solution(graph: PoseGraph, poses: np.ndarray, path: str | Path) -> None:
-    """Write ``graph`` with ``poses`` ``(N, 3)`` (a solution, rows in the graph's vertex order) as
-    its VERTEX lines: g2o for a ``.g2o`` path, TORO for ``.graph``. Edges are written as the
-    graph holds them (a file read by :func:`read_graph` written back reads to the same
-    measurements and information, so the file's ``F`` at its own VERTEX poses is the
-    solution's). Vertex ids are the file's own (:func:`file_ids`), FIX lines are written
-    back. A graph read from a TORO file with EQUIV lines is written merged (one vertex per
-    class, with the class's smallest id; no EQUIV lines; see docs/io.md).
-
-    Raises:
-        ValueRangeError: another suffix, or ``poses`` not ``(N, 3)``.
-    """
-    graph_writer(path)(graph, path, _checked_poses(graph, poses))
-
-
-def graph_writer(path: str | Path, name: str = "output graph file"):
-    """The writer of :data:`GRAPH_WRITERS` for ``path``'s suffix, or a ValueRangeError naming
-    ``name`` (the option) and the allowed suffixes."""
-    suffix = Path(path).suffix
-    if suffix not in GRAPH_WRITERS:
-        allowed = "a path ending in " + " or ".join(GRAPH_WRITERS) + " (g2o or TORO)"
-        raise ValueRangeError(name, str(path), allowed)
-    return GRAPH_WRITERS[suffix]
-
-
-def _checked_poses(graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.shape != (graph.num_poses, 3):
-        raise ValueRangeError("poses", f"shape {poses.shape}", f"({graph.num_poses}, 3)")
-    return poses
-
-
-def write_tum(poses: np.ndarray, path: str | Path, ids: np.ndarray | None = None) -> None:
-    """Write ``poses`` ``(N, 3)`` ``(x [m], y [m], θ [rad])`` as a TUM trajectory (what ``evo``
-    reads): one line ``timestamp x y z qx qy qz qw`` per pose, the timestamp the vertex id
-    (``ids`` ``(N,)``, default ``0 … N−1``) in exact decimal digits, ``z = 0`` and the unit
-    quaternion of the yaw, ``(0, 0, sin θ/2, cos θ/2)``. A reader that parses the timestamp as
-    a float64 (evo) reads ids up to 2⁵³ exactly and rounds larger ones (:func:`tum_rounded`)."""
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    ids = np.arange(poses.shape[0], dtype=np.uint64) if ids is None else np.asarray(ids)
-    half = poses[:, 2] / 2.0
-    zeros = np.zeros((poses.shape[0], 3))
-    rows = _rows(ids, poses[:, :2], zeros, np.sin(half), np.cos(half))
-    with Path(path).open("w") as handle:
-        handle.write("# timestamp(vertex id) x y z qx qy qz qw\n")
-        _savetxt(handle, rows, ["%d"] + ["%.17g"] * 7)
-
-
-def tum_rounded(ids: np.ndarray) -> int:
-    """How many of the ``(N,)`` ids a float64 reader of the TUM timestamp (evo) cannot tell
-    from another id: those whose float64 value another id shares (0 for ids up to 2⁵³; GTSAM
-    ``Symbol`` keys, a letter in the top byte, share one float64 per 1024 consecutive
-    indices)."""
-    _, counts = np.unique(np.asarray(ids, dtype=np.uint64).astype(np.float64), return_counts=True)
-    return int(counts[counts > 1].sum())
-
-
-FLAGS_HEADER = "edge,i,j,kind,weight,flagged"
-
-
-def write_flags(
-    graph: PoseGraph,
-    path: str | Path,
-    inlier_mask: np.ndarray | None,
-    weights: np.ndarray | None = None,
-) -> None:
-    """Write one CSV row per edge: ``edge`` (its index, the order of the file's edge lines),
-    ``i``, ``j`` (the file's ids of its vertices, :func:`file_ids`), ``kind``
-    (:class:`~popbench.graph.EdgeKind` name in lower case, under the problem's robot
-    assignment), ``weight`` (the method's final robust weight in ``[0, 1]``) and ``flagged``
-    (1: flagged as an outlier, 0: kept). ``weights`` ``(M,)`` or ``inlier_mask`` ``(M,)`` bool
-    None (the method reports none): that column is left empty (pandas reads NaN)."""
-    edges = np.arange(graph.num_edges)
-    kind_names = np.array([kind.name.lower() for kind in EdgeKind])[graph.kinds]
-    weight_text = (
-        np.full(edges.size, "")
-        if weights is None
-        else np.char.mod("%.17g", np.asarray(weights, dtype=np.float64))
-    )
-    flag_text = (
-        np.full(edges.size, "")
-        if inlier_mask is None
-        else np.where(np.asarray(inlier_mask, dtype=bool), "0", "1")
-    )
-    ids = file_ids(graph)
-    columns = [edges.astype(str), ids[graph.tails].astype(str), ids[graph.heads].astype(str)]
-    columns.append(kind_names)
-    table = np.column_stack([*columns, weight_text, flag_text])
-    with Path(path).open("w") as handle:
-        handle.write(FLAGS_HEADER + "\n")
-        _savetxt(handle, table, "%s", delimiter=",")
