@@ -34,7 +34,7 @@ from popbench import se2
 from popbench.choices import SLAM_LEVEL
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.graph import make_graph
+from popbench.graph import PoseGraph, make_graph
 from popbench.initial import with_start
 
 POSES_PER_ROBOT = (100, 1500)  # default range of P (poses per robot)
@@ -108,6 +108,27 @@ def edge_sigmas(
     return odometry[None, :] * scale[:, None], params
 
 
+def measured_graph(
+    rng: np.random.Generator,
+    truth: np.ndarray,
+    tails: np.ndarray,
+    heads: np.ndarray,
+    sigma: np.ndarray,
+    **fields: object,
+) -> PoseGraph:
+    """The graph of edges ``tails → heads`` ``(M,)`` measuring the true relative poses of
+    ``truth`` ``(N, 3)`` with Gaussian noise ``exp(ε)``, ``ε ~ N(0, diag σ²)`` drawn from
+    ``rng``, ``sigma`` ``(M, 3)`` (x [m], y [m], θ [rad]); information ``diag(1/σ²)``, poses
+    zero (a start is set later), ``ground_truth=truth`` and ``fields`` passed to
+    :func:`popbench.graph.make_graph`."""
+    noise = rng.normal(size=sigma.shape) * sigma
+    measurements = se2.compose(se2.between(truth[tails], truth[heads]), se2.exp(noise))
+    information = np.zeros((tails.size, 3, 3))
+    information[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sigma**2
+    zeros = np.zeros((truth.shape[0], 3))
+    return make_graph(zeros, tails, heads, measurements, information, ground_truth=truth, **fields)
+
+
 def make_map(
     robots: int = 7,
     poses_per_robot: int | tuple[int, int] = POSES_PER_ROBOT,
@@ -131,19 +152,8 @@ def make_map(
     tails = np.concatenate([chain, loops[:, 0]])
     heads = np.concatenate([chain + 1, loops[:, 1]])
     sigma, params = edge_sigmas(rng, np.arange(tails.size) >= chain.size, jitter)
-    noise = rng.normal(size=sigma.shape) * sigma
-    measurements = se2.compose(se2.between(truth[tails], truth[heads]), se2.exp(noise))
-    information = np.zeros((tails.size, 3, 3))
-    information[:, [0, 1, 2], [0, 1, 2]] = 1.0 / sigma**2
-    graph = make_graph(
-        np.zeros((num_poses, 3)),
-        tails,
-        heads,
-        measurements,
-        information,
-        ground_truth=truth,
-        name=f"slam-map-R{robots}x{per_robot}-seed{seed}",
-    )
+    name = f"slam-map-R{robots}x{per_robot}-seed{seed}"
+    graph = measured_graph(rng, truth, tails, heads, sigma, name=name)
     params |= {
         "poses_per_robot": per_robot,
         "straight": straight,

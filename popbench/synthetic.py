@@ -36,7 +36,7 @@ from popbench import se2, slam_maps
 from popbench.choices import NOISE_LEVELS
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.graph import make_graph, odometry_composition, robot_kinds
+from popbench.graph import odometry_composition, robot_kinds
 from popbench.initial import with_start
 
 MIN_LOOP_GAP = 5  # intra-robot loop closures join poses at least this many steps apart
@@ -152,21 +152,10 @@ def make_problem(
     heads = np.concatenate([chain_tails + 1, loop_heads])
     kinds = robot_kinds(tails, heads, owner)
 
-    sigma = sigmas[kinds]
-    noise_twists = rng.normal(size=(tails.size, 3)) * sigma[:, None]
-    measurements = se2.compose(se2.between(truth[tails], truth[heads]), se2.exp(noise_twists))
-    information = np.eye(3) / (sigma**2)[:, None, None]
-
-    graph = make_graph(
-        np.zeros((num_poses, 3)),
-        tails,
-        heads,
-        measurements,
-        information,
-        kinds,
-        ground_truth=truth,
-        robots=owner,
-        name=f"synthetic-{noise}-R{robots}x{poses_per_robot}-seed{seed}",
+    sigma = np.repeat(sigmas[kinds][:, None], 3, axis=1)  # isotropic: one σ per edge kind
+    name = f"synthetic-{noise}-R{robots}x{poses_per_robot}-seed{seed}"
+    graph = slam_maps.measured_graph(
+        rng, truth, tails, heads, sigma, kinds=kinds, robots=owner, name=name
     )
     return with_start(DistributedProblem(graph), "odometry")
 
