@@ -25,6 +25,8 @@ own path is not recorded in ``F_chordal``). ``extras``: ``F_first``, ``first_par
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from popbench import objective
@@ -76,21 +78,25 @@ def mm_pgo_from(
     )
 
 
-def solve_prop_v1_mm_pgo(
-    problem: DistributedProblem,
-    budget: Budget | None = None,
-    refined: Result | None = None,
-    **options: object,
-) -> Result:
-    """Method ``"prop-v1+mm-pgo"``: prop-v1, then mm-pgo from its estimate."""
-    return mm_pgo_from("prop-v1", problem, budget, refined, options)
+def refining_mm_pgo(first_method: str) -> Callable[..., Result]:
+    """The entry point of method ``"<first_method>+mm-pgo"``: ``solve(problem, budget=None,
+    refined=None, **options)``, :func:`mm_pgo_from` with ``first_method``."""
+
+    def solve(
+        problem: DistributedProblem,
+        budget: Budget | None = None,
+        refined: Result | None = None,
+        **options: object,
+    ) -> Result:
+        return mm_pgo_from(first_method, problem, budget, refined, options)
+
+    solve.__doc__ = (
+        f"Method ``{first_method}+mm-pgo``: {first_method}, then mm-pgo from its estimate."
+    )
+    # The module attribute it is bound to, so that pickle (process pools) finds it by name.
+    solve.__name__ = solve.__qualname__ = f"solve_{first_method.replace('-', '_')}_mm_pgo"
+    return solve
 
 
-def solve_local_lm_mm_pgo(
-    problem: DistributedProblem,
-    budget: Budget | None = None,
-    refined: Result | None = None,
-    **options: object,
-) -> Result:
-    """Method ``"local-lm+mm-pgo"``: local-lm, then mm-pgo from its estimate."""
-    return mm_pgo_from("local-lm", problem, budget, refined, options)
+solve_prop_v1_mm_pgo = refining_mm_pgo("prop-v1")
+solve_local_lm_mm_pgo = refining_mm_pgo("local-lm")
