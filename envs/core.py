@@ -20,7 +20,7 @@ Action (per agent)
     ``edge`` ∈ {0..E}: a local edge ``p → q`` not processed yet; ``E`` is the *no-op*, valid only
     once every local edge of the agent was processed (agents with fewer edges than the longest one
     wait with it). ``delta = (δx [m], δy [m], δθ [rad])`` clipped to ``|δ| ≤ Δmax`` componentwise.
-    The correction moves the head ``q`` in the tail's frame (eq. C)::
+    The correction moves the head ``q`` in the tail's frame (eq. C; :mod:`envs.correction`)::
 
         x_q ← x_p ∘ (between(x_p, x_q) + Δ),     angle wrapped to [−π, π)
 
@@ -56,15 +56,8 @@ from envs.basestep import (
     chosen_model,
     chosen_step,
 )
-from envs.geometry import (
-    _gather_rows,
-    _offset,
-    _scatter_rows,
-    between,
-    compose,
-    inverse,
-    residuals,
-)
+from envs.correction import move_subtree, refresh_boundary, refresh_edges, subtree_members
+from envs.geometry import _gather_rows, _scatter_rows, between, compose, residuals
 from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
 from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
 from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
@@ -396,22 +389,22 @@ class PGOCore:
         tail = torch.gather(t.tails.view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
         head = torch.gather(t.heads.view(g, -1), 1, flat_edge)
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
-        inside = self.subtree_members(flat_edge)
+        inside = subtree_members(t, self.correction, flat_edge)
         crossing = boundary(t, inside)  # the same edges before and after the move
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
             delta = delta + chosen_step(t, self.step_modes, flat_edge, crossing).view(b, n, 3)
         clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
         previous = t.loss.clone()
         if self.correction == "subtree":
-            self._move_subtree(poses, flat_edge, clipped, inside)
-            change = self._refresh_boundary(crossing)
+            move_subtree(t, self.correction, poses, flat_edge, clipped, inside)
+            change = refresh_boundary(t, crossing, self.reward_kind)
             refreshed = crossing.crossing
         else:
             x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
             moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
             _scatter_rows(poses, head, moved)
             incident = _gather_rows(t.incident.view(g, -1, self.dims.degree), head).squeeze(1)
-            change = self._refresh_edges(incident)
+            change = refresh_edges(t, incident)
             refreshed = torch.zeros(g, e + 1, dtype=torch.bool, device=self.device)
             refreshed.scatter_(1, incident, True)
         self.last_moved, self.last_refreshed = inside, refreshed
@@ -452,7 +445,8 @@ class PGOCore:
         """The edge slots ``(B·n, 1)`` of ``edge (B, n)`` and the boundary of what a correction of
         each would move, at the current state."""
         flat_edge = edge.to(self.device, torch.int64).reshape(self.batch * self.num_agents, 1)
-        return flat_edge, boundary(self.state, self.subtree_members(flat_edge))
+        inside = subtree_members(self.state, self.correction, flat_edge)
+        return flat_edge, boundary(self.state, inside)
 
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
@@ -466,99 +460,16 @@ class PGOCore:
             delta = (_gather_rows(inverse_root, edge) @ delta.unsqueeze(-1)).squeeze(-1)
         return torch.maximum(torch.minimum(delta, self.delta_max), -self.delta_max)
 
-    def subtree_members(self, edge: torch.Tensor) -> torch.Tensor:
-        """``(G, V+1)`` bool: the vertices a correction of the edge slots ``edge (G, 1)`` moves
-        (the mover's subtree, a contiguous range of pre-order positions; the head alone in the
-        pose mode; only the trash vertex for the no-op)."""
-        t = self.state
-        g = edge.shape[0]
-        if self.correction == "pose":
-            head = torch.gather(t.heads.view(g, -1), 1, edge)
-            return torch.arange(self.dims.vertices + 1, device=self.device) == head
-        mover = torch.gather(t.mover.view(g, -1), 1, edge)
-        position = t.tree_position.view(g, -1)
-        start = torch.gather(position, 1, mover)
-        stop = torch.gather(t.tree_end.view(g, -1), 1, mover)
-        return (position >= start) & (position < stop)
-
     def subtree_move(
         self, poses: torch.Tensor, edge: torch.Tensor, delta: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The correction, out of place: ``(moved poses (G, V+1, 3), inside (G, V+1))`` for
         ``poses (G, V+1, 3)``, edge slots ``edge (G, 1)`` and metric ``delta (G, 1, 3)``;
-        ``inside``: :meth:`subtree_members`."""
-        inside = self.subtree_members(edge)
+        ``inside``: :func:`envs.correction.subtree_members`."""
+        inside = subtree_members(self.state, self.correction, edge)
         moved = poses.clone()
-        self._move_subtree(moved, edge, delta, inside)
+        move_subtree(self.state, self.correction, moved, edge, delta, inside)
         return moved, inside
-
-    def _move_subtree(
-        self, poses: torch.Tensor, edge: torch.Tensor, delta: torch.Tensor, inside: torch.Tensor
-    ) -> None:
-        """Move the vertices ``inside`` of ``poses (G, V+1, 3)`` rigidly, in place, so that the
-        relative pose of each edge slot ``edge (G, 1)`` changes by ``delta (G, 1, 3)``; only the
-        moved rows are computed and written."""
-        t = self.state
-        g = edge.shape[0]
-        tail = torch.gather(t.tails.view(g, -1), 1, edge)
-        head = torch.gather(t.heads.view(g, -1), 1, edge)
-        if self.correction == "pose":
-            mover = head
-        else:
-            mover = torch.gather(t.mover.view(g, -1), 1, edge)
-        x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
-        relative = between(x_p, x_q) + delta
-        moves_head = (mover == head).unsqueeze(-1)
-        old = torch.where(moves_head, x_q, x_p)
-        new = torch.where(moves_head, compose(x_p, relative), compose(x_q, inverse(relative)))
-        transform = compose(new, inverse(old))  # the subtree's rigid motion, world frame
-        rows = inside.flatten().nonzero().squeeze(-1)
-        flat = poses.view(-1, 3)
-        flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
-
-    def _refresh_boundary(self, crossing: Boundary) -> torch.Tensor:
-        """Recompute residuals and target costs of the edges that cross the moved subtree's
-        boundary (only those, :func:`envs.basestep.boundary`); return the change of ``L`` per
-        agent, ``(G,)``."""
-        t = self.state
-        slots = crossing.slots
-        flat_poses = t.poses.view(-1, 3)
-        relative = between(flat_poses[crossing.tail_rows], flat_poses[crossing.head_rows])
-        r = _offset(relative, t.measurements.view(-1, 3)[slots])
-        if self.reward_kind == "F":  # the targets are the measurements
-            target_r = r
-        else:
-            target_r = _offset(relative, t.targets.view(-1, 3)[slots])
-        cost = edge_costs(target_r, t.kappa.view(-1)[slots], t.tau.view(-1)[slots])
-        costs = t.costs.view(-1)
-        change = torch.zeros(crossing.crossing.shape[0], dtype=cost.dtype, device=self.device)
-        change.index_add_(0, crossing.agent, cost - costs[slots])
-        t.residuals.view(-1, 3)[slots] = r
-        costs[slots] = cost
-        return change
-
-    def _refresh_edges(self, incident: torch.Tensor) -> torch.Tensor:
-        """Recompute residuals and target costs of the edge slots ``incident (G, D)`` in place;
-        return the change of ``L`` per agent, ``(G,)``."""
-        t = self.state
-        g = incident.shape[0]
-        poses = t.poses.view(g, -1, 3)
-        tails = torch.gather(t.tails.view(g, -1), 1, incident)
-        heads = torch.gather(t.heads.view(g, -1), 1, incident)
-        x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
-        r = residuals(x_p, x_q, _gather_rows(t.measurements.view(g, -1, 3), incident))
-        cost = edge_costs(
-            residuals(x_p, x_q, _gather_rows(t.targets.view(g, -1, 3), incident)),
-            torch.gather(t.kappa.view(g, -1), 1, incident),
-            torch.gather(t.tau.view(g, -1), 1, incident),
-        )
-        costs = t.costs.view(g, -1)
-        real = incident < self.dims.edges  # padding slots point at the trash slot E
-        old = torch.gather(costs, 1, incident)
-        change = torch.where(real, cost - old, torch.zeros_like(cost)).sum(-1)
-        _scatter_rows(t.residuals.view(g, -1, 3), incident, r)
-        costs.scatter_(1, incident, cost)
-        return change
 
     # -- observation (envs.readout) ---------------------------------------------------------------
 

@@ -318,9 +318,9 @@ def test_boundary_step_equals_the_full_recomputation_on_the_quick_table(monkeypa
         calls["step"] += 1
         return _gather_rows(base_model(state, modes).step, edge)
 
-    def full_refresh(core, crossing):
+    def full_refresh(t, crossing, reward):
         calls["refresh"] += 1
-        t = core.state
+        assert reward == "F"  # prop-v1's reward: the targets are the measurements
         g = crossing.crossing.shape[0]
         poses = t.poses.view(g, -1, 3)
         tails, heads = t.tails.view(g, -1), t.heads.view(g, -1)
@@ -334,7 +334,7 @@ def test_boundary_step_equals_the_full_recomputation_on_the_quick_table(monkeypa
         return change
 
     monkeypatch.setattr(envs.core, "chosen_step", full_step)
-    monkeypatch.setattr(envs.core.PGOCore, "_refresh_boundary", full_refresh)
+    monkeypatch.setattr(envs.core, "refresh_boundary", full_refresh)
     full = solve_prop_v1(problem, Budget())
     steps = full.iterations
     assert calls == {"step": steps, "refresh": steps}  # every step took the full path

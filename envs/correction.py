@@ -1,0 +1,110 @@
+"""The correction a step applies (paper eq. C), as functions of the declared state: which
+vertices it moves, the move itself, and the refresh of the edges whose residuals it changes.
+
+``G = B·n`` agents; edge slots ``edge (G, 1)`` index an agent's ``E + 1`` slots (``E``: the no-op,
+whose tail and head are the trash vertex ``V``). In the ``"pose"`` correction only the edge's
+head moves; in the ``"subtree"`` correction the edge's mover (:attr:`envs.tree.SpanningTree.mover`)
+moves rigidly with its subtree, a contiguous range of pre-order positions (:mod:`envs.core`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from envs.geometry import _gather_rows, _offset, _scatter_rows, between, compose, inverse, residuals
+from popbench.objective import edge_costs
+
+if TYPE_CHECKING:
+    from envs.basestep import Boundary
+    from envs.state import CoreState
+
+
+def subtree_members(t: CoreState, correction: str, edge: torch.Tensor) -> torch.Tensor:
+    """``(G, V+1)`` bool: the vertices a ``correction`` (``"pose"`` or ``"subtree"``) of the edge
+    slots ``edge (G, 1)`` moves (the mover's subtree, a contiguous range of pre-order positions;
+    the head alone in the pose mode; only the trash vertex for the no-op)."""
+    g = edge.shape[0]
+    if correction == "pose":
+        head = torch.gather(t.heads.view(g, -1), 1, edge)
+        return torch.arange(t.tree_position.shape[-1], device=edge.device) == head
+    mover = torch.gather(t.mover.view(g, -1), 1, edge)
+    position = t.tree_position.view(g, -1)
+    start = torch.gather(position, 1, mover)
+    stop = torch.gather(t.tree_end.view(g, -1), 1, mover)
+    return (position >= start) & (position < stop)
+
+
+def move_subtree(
+    t: CoreState,
+    correction: str,
+    poses: torch.Tensor,
+    edge: torch.Tensor,
+    delta: torch.Tensor,
+    inside: torch.Tensor,
+) -> None:
+    """Move the vertices ``inside`` (:func:`subtree_members`) of ``poses (G, V+1, 3)`` rigidly,
+    in place, so that the relative pose of each edge slot ``edge (G, 1)`` changes by ``delta
+    (G, 1, 3)``; only the moved rows are computed and written."""
+    g = edge.shape[0]
+    tail = torch.gather(t.tails.view(g, -1), 1, edge)
+    head = torch.gather(t.heads.view(g, -1), 1, edge)
+    if correction == "pose":
+        mover = head
+    else:
+        mover = torch.gather(t.mover.view(g, -1), 1, edge)
+    x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
+    relative = between(x_p, x_q) + delta
+    moves_head = (mover == head).unsqueeze(-1)
+    old = torch.where(moves_head, x_q, x_p)
+    new = torch.where(moves_head, compose(x_p, relative), compose(x_q, inverse(relative)))
+    transform = compose(new, inverse(old))  # the subtree's rigid motion, world frame
+    rows = inside.flatten().nonzero().squeeze(-1)
+    flat = poses.view(-1, 3)
+    flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
+
+
+def refresh_boundary(t: CoreState, crossing: Boundary, reward: str) -> torch.Tensor:
+    """Recompute, in place, the residuals and target costs of the edges that cross the moved
+    subtree's boundary (only those, :func:`envs.basestep.boundary`); return the change of ``L``
+    per agent, ``(G,)``. ``reward``: ``"F"`` (the targets are the measurements) or
+    ``"localisation"``."""
+    slots = crossing.slots
+    flat_poses = t.poses.view(-1, 3)
+    relative = between(flat_poses[crossing.tail_rows], flat_poses[crossing.head_rows])
+    r = _offset(relative, t.measurements.view(-1, 3)[slots])
+    if reward == "F":  # the targets are the measurements
+        target_r = r
+    else:
+        target_r = _offset(relative, t.targets.view(-1, 3)[slots])
+    cost = edge_costs(target_r, t.kappa.view(-1)[slots], t.tau.view(-1)[slots])
+    costs = t.costs.view(-1)
+    change = torch.zeros(crossing.crossing.shape[0], dtype=cost.dtype, device=cost.device)
+    change.index_add_(0, crossing.agent, cost - costs[slots])
+    t.residuals.view(-1, 3)[slots] = r
+    costs[slots] = cost
+    return change
+
+
+def refresh_edges(t: CoreState, incident: torch.Tensor) -> torch.Tensor:
+    """Recompute, in place, the residuals and target costs of the edge slots ``incident (G, D)``
+    (padding: the trash slot ``E``); return the change of ``L`` per agent, ``(G,)``."""
+    g = incident.shape[0]
+    poses = t.poses.view(g, -1, 3)
+    tails = torch.gather(t.tails.view(g, -1), 1, incident)
+    heads = torch.gather(t.heads.view(g, -1), 1, incident)
+    x_p, x_q = _gather_rows(poses, tails), _gather_rows(poses, heads)
+    r = residuals(x_p, x_q, _gather_rows(t.measurements.view(g, -1, 3), incident))
+    cost = edge_costs(
+        residuals(x_p, x_q, _gather_rows(t.targets.view(g, -1, 3), incident)),
+        torch.gather(t.kappa.view(g, -1), 1, incident),
+        torch.gather(t.tau.view(g, -1), 1, incident),
+    )
+    costs = t.costs.view(g, -1)
+    real = incident < t.edge_mask.shape[-1]  # padding slots point at the trash slot E
+    old = torch.gather(costs, 1, incident)
+    change = torch.where(real, cost - old, torch.zeros_like(cost)).sum(-1)
+    _scatter_rows(t.residuals.view(g, -1, 3), incident, r)
+    costs.scatter_(1, incident, cost)
+    return change
