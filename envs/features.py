@@ -19,11 +19,11 @@ from typing import NamedTuple
 
 
 class Column(NamedTuple):
-    """One feature column: its ``name``, ``unit`` and ``meaning``."""
+    """One feature column: its ``name``, ``meaning`` and ``unit`` (``""``: unitless)."""
 
     name: str
-    unit: str
     meaning: str
+    unit: str = ""
 
 
 class Entry(NamedTuple):
@@ -38,25 +38,25 @@ class Entry(NamedTuple):
 
 
 NODE = (
-    Column("x", "m", "position in the frame vertex's frame (first owned pose, or tree parent)"),
-    Column("y", "m", "the same, second coordinate"),
-    Column("sin_theta", "", "sine of the heading relative to the frame vertex"),
-    Column("cos_theta", "", "cosine of the same"),
-    Column("log_degree", "", "log(1 + degree) in the local graph"),
-    Column("owned", "", "1: the agent's own pose; 0: a separator copy of a neighbour's pose"),
+    Column("x", "position in the frame vertex's frame (first owned pose, or tree parent)", "m"),
+    Column("y", "the same, second coordinate", "m"),
+    Column("sin_theta", "sine of the heading relative to the frame vertex"),
+    Column("cos_theta", "cosine of the same"),
+    Column("log_degree", "log(1 + degree) in the local graph"),
+    Column("owned", "1: the agent's own pose; 0: a separator copy of a neighbour's pose"),
 )
 EDGE = (
-    Column("odometry", "", "kind one-hot: consecutive poses of one robot"),
-    Column("loop", "", "kind one-hot: intra-robot loop closure"),
-    Column("inter_relative", "", "kind one-hot: consecutive poses owned by two robots"),
-    Column("inter_loop", "", "kind one-hot: loop closure between two robots"),
-    Column("log_info_x", "", "log Λ_xx (whitened action: centred on the agent's mean)"),
-    Column("log_info_y", "", "log Λ_yy (likewise)"),
-    Column("log_info_theta", "", "log Λ_θθ (likewise)"),
-    Column("gap", "", "log(1 + d) / log(N), d the distance of the endpoints' global ids; (0, 1]"),
-    Column("length", "m", "‖t̃‖ of the measurement (whitened action: √τ ‖t̃‖, unitless)"),
-    Column("sin_theta", "", "sine of the measured rotation θ̃"),
-    Column("cos_theta", "", "cosine of the same"),
+    Column("odometry", "kind one-hot: consecutive poses of one robot"),
+    Column("loop", "kind one-hot: intra-robot loop closure"),
+    Column("inter_relative", "kind one-hot: consecutive poses owned by two robots"),
+    Column("inter_loop", "kind one-hot: loop closure between two robots"),
+    Column("log_info_x", "log Λ_xx (whitened action: centred on the agent's mean)"),
+    Column("log_info_y", "log Λ_yy (likewise)"),
+    Column("log_info_theta", "log Λ_θθ (likewise)"),
+    Column("gap", "log(1 + d) / log(N), d the distance of the endpoints' global ids; (0, 1]"),
+    Column("length", "‖t̃‖ of the measurement (whitened action: √τ ‖t̃‖, unitless)", "m"),
+    Column("sin_theta", "sine of the measured rotation θ̃"),
+    Column("cos_theta", "cosine of the same"),
 )
 EDGE_COLUMN = {column.name: index for index, column in enumerate(EDGE)}
 BASE_MODEL = 9  # g / F (3) and the upper triangle of H / F (6), envs.basestep.observed_model
