@@ -6,7 +6,9 @@ once: the modules that implement a choice import its list from here (no NumPy, s
   :data:`NOISES` — those and :data:`SLAM_LEVEL`, the SLAM-shaped maps (:mod:`popbench.slam_maps`);
 * :data:`PARTITIONS` — how poses are split among robots (:mod:`popbench.partition`);
 * :data:`ROBUST_KERNELS` — the robust kernels of MM-PGO (:mod:`baselines.robust`), besides
-  ``"none"``.
+  ``"none"``;
+* :data:`DEFAULT_GROUP_SIZE` — the false loop closures per group of the vertigo-grouped outlier
+  model (:mod:`popbench.outliers`).
 """
 
 from __future__ import annotations
@@ -21,3 +23,4 @@ SLAM_LEVEL = "SLAM"  # the level under which popbench.synthetic.make_problem dra
 NOISES = (*NOISE_LEVELS, SLAM_LEVEL)
 PARTITIONS = ("metis", "contiguous")
 ROBUST_KERNELS = ("huber", "gm", "welsch")
+DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group

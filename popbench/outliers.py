@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from popbench import se2
+from popbench.choices import DEFAULT_GROUP_SIZE
 from popbench.distributed import DistributedProblem
 from popbench.errors import DataFormatError, ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph, robot_kinds, single_robot_kinds
@@ -55,7 +56,6 @@ OUTLIER_MODELS = (CORRUPT, *ADDED_MODELS)
 LOCAL_WINDOW = 20  # vertigo-local: 2 ≤ |a − b| ≤ 20 poses
 ADDED_SIGMA_T = 0.3  # [m] per axis, the added edges' translation
 ADDED_SIGMA_THETA = float(np.deg2rad(10.0))  # [rad], their rotation
-DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group
 
 
 def candidate_mask(graph: PoseGraph, candidates: str = "loops") -> np.ndarray:

@@ -42,3 +42,26 @@ def test_table1_help_states_its_configs_defaults() -> None:
     iterations = parameters["iterations"].default.help
     assert f"default: {config.iterations}; --quick: {quick.iterations}" in iterations
     assert f"default: {config.out}; --quick: {quick.out}" in parameters["out"].default.help
+
+
+def test_start_partition_and_group_size_defaults_are_the_configs() -> None:
+    from popbench.cli import plot, solve
+    from popbench.outliers import add_false_loop_closures
+
+    table1, config = defaults_of(run.table1_command), Table1Config()
+    assert (table1["init"], table1["partition"]) == (config.init, config.partition)
+    outliers, config = defaults_of(run.outliers_command), OutliersConfig()
+    assert outliers["init"] == config.init
+    group_size = inspect.signature(run.outliers_command).parameters["group_size"].default.help
+    assert f"(default: {config.group_size})" in group_size
+    assert (
+        config.group_size
+        == inspect.signature(add_false_loop_closures).parameters["group_size"].default
+    )
+    scalability, config = defaults_of(run.scalability_command), ScalabilityConfig()
+    assert (scalability["init"], config.partition) == (config.init, Table1Config().partition)
+    commands = (solve.solve_command, solve.solve_record, solve.build_problem)
+    for command in (*commands, plot.trajectories_command):
+        assert defaults_of(command)["init"] == config.init, command.__name__
+    for command in commands[:2]:
+        assert defaults_of(command)["partition"] == config.partition, command.__name__

@@ -8,6 +8,7 @@ import typer
 
 from popbench.cli import options
 from popbench.errors import ValueRangeError
+from popbench.harness import defaults
 
 app = typer.Typer(help="Plot trajectories and learning curves.", no_args_is_help=True)
 
@@ -23,7 +24,7 @@ def trajectories_command(
     robots: int = typer.Option(7, min=1, help="Team size."),
     methods: str = typer.Option("mm-pgo,prop-v1,prop-v2", help="Methods to plot."),
     iterations: int = typer.Option(1000, min=1, help="Rounds for the iterative methods."),
-    init: str = typer.Option("odometry", help="Initial estimate: odometry | chordal | given."),
+    init: str = typer.Option(defaults.INIT, help="Initial estimate: odometry | chordal | given."),
     out: Path = typer.Option(
         None,
         help="Output stem: writes STEM.png and STEM.pdf "

@@ -19,7 +19,7 @@ from typing import Any
 
 import typer
 
-from popbench.choices import NOISES, PARTITIONS, ROBUST_KERNELS
+from popbench.choices import DEFAULT_GROUP_SIZE, NOISES, PARTITIONS, ROBUST_KERNELS
 from popbench.cli import options
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness import defaults
@@ -93,8 +93,8 @@ def table1_command(
         "agents/checkpoints/README.md): a learned cell runs once per seed and the table "
         "shows mean ± 95 % CI.",
     ),
-    init: options.Init = "odometry",
-    partition: str = typer.Option("metis", help="metis | contiguous."),
+    init: options.Init = defaults.INIT,
+    partition: str = typer.Option(defaults.PARTITION, help=" | ".join(PARTITIONS) + "."),
     out: Path = typer.Option(
         None,
         help=with_quick("Output folder", defaults.TABLE1_OUT, "out"),
@@ -166,7 +166,7 @@ def outliers_command(
     group_size: int = typer.Option(
         None,
         min=1,
-        help="Edges per group of vertigo-grouped (default: 5).",
+        help=f"Edges per group of vertigo-grouped (default: {DEFAULT_GROUP_SIZE}).",
         show_default=False,
     ),
     outlier_mask: Path = typer.Option(
@@ -190,7 +190,8 @@ def outliers_command(
         show_default=False,
     ),
     init: str = typer.Option(
-        "odometry", help="odometry | chordal (made from the corrupted data) | given (the file's)."
+        defaults.INIT,
+        help="odometry | chordal (made from the corrupted data) | given (the file's).",
     ),
     candidates: str = typer.Option(
         "loops",
@@ -209,7 +210,7 @@ def outliers_command(
     the team size checked before anything is computed.
     """
     from popbench.harness.outliers import OutliersConfig, run_outliers
-    from popbench.outliers import CANDIDATE_SETS, CORRUPT, DEFAULT_GROUP_SIZE, OUTLIER_MODELS
+    from popbench.outliers import CANDIDATE_SETS, CORRUPT, OUTLIER_MODELS
 
     model = options.names(model, OUTLIER_MODELS, "--model")[0]
     if outlier_mask is not None:
@@ -252,7 +253,7 @@ def scalability_command(
     robots: options.TeamSizes = SCALABILITY_ROBOTS,
     methods: str = typer.Option(joined(defaults.SCALABILITY_METHODS), help="Methods."),
     iterations: options.Iterations = defaults.ITERATIONS,
-    init: options.Init = "odometry",
+    init: options.Init = defaults.INIT,
     out: options.Out = Path(defaults.SCALABILITY_OUT),
     run: Run,
 ) -> None:

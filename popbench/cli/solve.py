@@ -16,6 +16,7 @@ import typer
 from popbench.choices import PARTITIONS
 from popbench.cli.options import CommandThreads
 from popbench.errors import PopbenchError, ValueRangeError
+from popbench.harness import defaults
 
 
 def parse_method_options(pairs: list[str]) -> dict[str, Any]:
@@ -33,7 +34,7 @@ def parse_method_options(pairs: list[str]) -> dict[str, Any]:
     return options
 
 
-def build_problem(source: str, robots: int, partition: str, seed: int, init: str = "odometry"):
+def build_problem(source: str, robots: int, partition: str, seed: int, init: str = defaults.INIT):
     """``source`` (a registered name or a file) split among ``robots`` robots, carrying the
     ``init`` start (:func:`popbench.harness.problems.distributed_problem`, as the harness)."""
     from popbench.harness.problems import distributed_problem
@@ -149,11 +150,11 @@ class SolveProgress:
 def solve_record(
     source: str,
     method: str = "lm",
-    init: str = "odometry",
+    init: str = defaults.INIT,
     iterations: int | None = None,
     seconds: float | None = None,
     robots: int = 1,
-    partition: str = "metis",
+    partition: str = defaults.PARTITION,
     seed: int = 0,
     options: dict[str, Any] | None = None,
     progress: SolveProgress | None = None,
@@ -435,7 +436,7 @@ def solve_command(
         typer.Option(
             help="Initial estimate: odometry (composition), chordal, or given (the file's poses)."
         ),
-    ] = "odometry",
+    ] = defaults.INIT,
     iterations: Annotated[
         int | None,
         typer.Option(
@@ -459,7 +460,7 @@ def solve_command(
     ] = 1,
     partition: Annotated[
         str, typer.Option(help="How poses are split among robots: metis or contiguous.")
-    ] = "metis",
+    ] = defaults.PARTITION,
     seed: Annotated[int, typer.Option(help="Seed of the partitioner (METIS).")] = 0,
     option: Annotated[
         list[str] | None,

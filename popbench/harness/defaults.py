@@ -6,6 +6,8 @@ options and their help (``popbench --help`` imports no NumPy)."""
 from __future__ import annotations
 
 ITERATIONS = 1000  # rounds of the iterative methods (the paper's 1000)
+INIT = "odometry"  # every method's initial estimate (popbench.initial.STARTS)
+PARTITION = "metis"  # how poses are split among robots (popbench.choices.PARTITIONS)
 
 TABLE1_DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")
 TABLE1_ROBOTS = (3, 7, 35)

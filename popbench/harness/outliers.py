@@ -70,7 +70,7 @@ class OutliersConfig:
     robots: int = defaults.OUTLIERS_ROBOTS
     seeds: tuple[int, ...] = defaults.OUTLIERS_SEEDS
     iterations: int = defaults.ITERATIONS
-    init: str = "odometry"
+    init: str = defaults.INIT
     kernel: str | None = None  # None: each method's registry record (outlier_options)
     candidates: str = "loops"
     model: str = CORRUPT  # popbench.outliers.OUTLIER_MODELS, or MASK (set by outlier_mask)

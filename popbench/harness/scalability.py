@@ -30,8 +30,8 @@ class ScalabilityConfig:
     methods: tuple[str, ...] = METHODS
     iterations: int = defaults.ITERATIONS
     seed: int = 0
-    init: str = "odometry"
-    partition: str = "metis"
+    init: str = defaults.INIT
+    partition: str = defaults.PARTITION
     out: Path = Path(defaults.SCALABILITY_OUT)
 
 

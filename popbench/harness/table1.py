@@ -48,8 +48,8 @@ class Table1Config:
     seeds: tuple[int, ...] = (0,)
     # the learned methods' actors: one cell per training seed (MethodRecord.seed_checkpoints)
     training_seeds: tuple[int, ...] = (0,)
-    init: str = "odometry"
-    partition: str = "metis"
+    init: str = defaults.INIT
+    partition: str = defaults.PARTITION
     out: Path = Path(defaults.TABLE1_OUT)
     # the team sizes a method is restricted to (the others: every size of `robots`)
     method_robots: dict[str, tuple[int, ...]] = dataclasses.field(
