@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from popbench.harness import problems
+from popbench.harness import defaults, problems
 from popbench.methods import Budget, get_method
 from popbench.plotting import pyplot, save_figure
 
@@ -17,7 +17,7 @@ def plot_trajectories(
     methods: tuple[str, ...],
     out: Path,
     iterations: int = 1000,
-    init: str = "odometry",
+    init: str = defaults.INIT,
 ) -> list[Path]:
     """One panel per estimate (initial, then each method), one colour per robot; PNG + PDF."""
     plt = pyplot()
