@@ -1,5 +1,5 @@
 """LM benchmark: our sparse LM against GTSAM 4.3.0's LevenbergMarquardtOptimizer, and the
-optimum table (issue 2).
+optimum table (docs/lm.md).
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_lm.py
     (options: --datasets m3500,city10k --repeats 5 --table --profile)
@@ -33,7 +33,7 @@ from popbench.methods import Budget
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.solvers.lm import reference_optimum, solve, solve_graph
 
-REFERENCE_F = {  # eq. 1 with κ/τ weights, DESIGN.md
+REFERENCE_F = {  # eq. 1 with κ/τ weights (docs/conventions.md)
     "intel": 205.0502,
     "mit": 40.2451,
     "csail": 20.5362,

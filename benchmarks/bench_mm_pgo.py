@@ -1,12 +1,13 @@
 """MM-PGO benchmark: convergence to the published optima, timing against GTSAM LM, odometry
-starts and outlier detection (issue 3).
+starts and outlier detection (docs/mm_pgo.md).
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_mm_pgo.py
     (options: --datasets intel,mit --robots 3,7 --iterations 1000 --skip-odometry ...)
 
 Prints one table row per run: dataset, robots n, init, F_chordal after the iterations, relative
-gap to the published SE-Sync-convention optimum (REFERENCES §6.2), the first iteration within
-1e-3, iterations, wall_s, parallel_s (a makespan model, see baselines.mm_pgo). Then the
+gap to the published SE-Sync-convention optimum (Dataset.chordal_optimum; SE-Sync, IJRR 2019,
+Table 1), the first iteration within 1e-3, iterations, wall_s, parallel_s (a makespan model,
+see baselines.mm_pgo). Then the
 1000-iteration time at n = 7 on m3500 and city10k divided by GTSAM Levenberg–Marquardt's time
 on the same graph (measured in the same run; GTSAM from the file's odometry initial estimate, a
 gauge prior on pose 0, default parameters), and precision / recall of the outliers flagged on

@@ -1,4 +1,4 @@
-"""prop-v1 inference speed (issue 5, item 7) and prop-v1 vs mm-pgo on city10k.
+"""prop-v1 inference speed (docs/prop_speed.md) and prop-v1 vs mm-pgo on city10k.
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/bench_prop.py
     (options: --sizes 60,250,1000,2500,10000 (--sizes '' skips part 1) --steps 100

@@ -2,8 +2,9 @@
 
 Prints, for each dataset × number of robots × method, after ``--iterations`` rounds (one round =
 one colour class of non-adjacent robots updating in parallel, see ``baselines/rbcd/``):
-F_chordal of the rounded estimate, its gap to the published certified optimum (REFERENCES §6.2),
-the first round whose relaxed cost (2f) was within 1e-3 of it, wall_s and parallel_s. Then:
+F_chordal of the rounded estimate, its gap to the published certified optimum
+(Dataset.chordal_optimum; SE-Sync, IJRR 2019, Table 1), the first round whose relaxed cost
+(2f) was within 1e-3 of it, wall_s and parallel_s. Then:
 
 * each baseline's wall time on m3500 and city10k (n = 7) divided by GTSAM 4.3 Levenberg–Marquardt's
   time on the same graph (default parameters, from the file's odometry estimate, pose 0 fixed by

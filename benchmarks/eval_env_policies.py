@@ -1,4 +1,4 @@
-"""Local F after one episode of the environment's non-learned policies (issue 14, items 1–3).
+"""Local F after one episode of the environment's non-learned policies (docs/environment.md).
 
 On held-out synthetic problems (seeds ``popbench.harness.heldout.HELDOUT_SEED_BASE + k``, above
 every training stream's 32-bit seeds), each row runs one episode of :class:`envs.core.PGOCore`

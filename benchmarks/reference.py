@@ -56,7 +56,7 @@ def gtsam_lm_seconds(name: str) -> tuple[float, float]:
 
 
 # The original C++ implementations, built from source and run on a quiet 2-core machine of this
-# kind (issue 16 item 5; REFERENCES.md "Building the original C++ baselines"): 1000 iterations,
+# kind (docs/mm_pgo.md, the original C++ baselines): 1000 iterations,
 # n = 7 robots, chordal start, whole-process wall seconds and final F_chordal (SE-Sync
 # convention, the printed 2f). MM-PGO: MurpheyLab/DPGO `bin/dist_pgo --num_nodes 7 --iters 1000
 # --loss trivial --dist_init true` (its distributed chordal start); RBCD: mit-acl/dpgo

@@ -2,7 +2,7 @@
 
 Independent references: noise-free graphs (the truth is the exact answer), SciPy's
 ``least_squares`` (a different trust-region solver on the same residuals), the objective's own
-gradient, and the published optima of DESIGN.md (F of eq. 1 with κ/τ weights).
+gradient, and the published optima (F of eq. 1 with κ/τ weights).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from popbench.methods import Budget, get_method
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.solvers.lm import reference_optimum, solve, solve_graph
 
-# Independent reference values of F (DESIGN.md / REFERENCES.md §6.2).
+# Independent reference values of F (recomputed beside SE-Sync, IJRR 2019, Table 1).
 REFERENCE_F = {
     "intel": 205.0502,
     "mit": 40.2451,

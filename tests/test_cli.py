@@ -163,7 +163,7 @@ def test_solve_intel_json_reaches_the_reference_optimum() -> None:
     assert REQUIRED_KEYS <= set(record)
     assert (record["dataset"], record["method"], record["robots"]) == ("intel", "lm", 1)
     assert (record["poses"], record["edges"]) == (1228, 1483)
-    # Independent reference (DESIGN.md): intel F* = 205.0502 (eq. 1, κ/τ weights).
+    # Independent reference (docs/conventions.md): intel F* = 205.0502 (eq. 1, κ/τ weights).
     assert record["F"] == pytest.approx(205.0502, rel=1e-5)
     assert record["F"] <= record["F_init"]
     assert record["history_length"] == record["iterations"] + 1

@@ -1,5 +1,5 @@
 """The subtree correction mode, its spanning tree and separator placement, the invariant and
-whitened observations, the expert and the Gauss–Newton sweep (issue 14, items 1–3)."""
+whitened observations, the expert and the Gauss–Newton sweep (docs/environment.md)."""
 
 from __future__ import annotations
 

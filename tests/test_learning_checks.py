@@ -1,4 +1,4 @@
-"""Checks that the learned parts can learn and do not drift (issue 26): the null-critic test
+"""Checks that the learned parts can learn and do not drift (docs/training.md): the null-critic test
 (a flat critic must not move the correction), the critic probe, and the sanity task (GA-SAC
 from scratch must learn a state-dependent correction, measured by the correction probe)."""
 

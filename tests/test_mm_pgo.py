@@ -335,7 +335,7 @@ def test_reaches_the_published_mit_optimum_with_three_robots():
 @pytest.mark.dataset
 @pytest.mark.slow
 def test_m3500_within_twice_the_originals_distance_to_the_optimum():
-    # issue 16 item 5: MM-PGO's C++ code (MurpheyLab/DPGO) ends 1000 iterations at n = 7 at
+    # MM-PGO's C++ code (MurpheyLab/DPGO) ends 1000 iterations at n = 7 at
     # 193.8645 (optimum 193.8623); ours, with the free gauge, at 193.8623 (fixed gauge: 193.9554).
     optimum, original = 193.8623, 193.8645
     problem = with_start(DistributedProblem.from_graph(require_dataset("m3500"), 7), "chordal")

@@ -1,4 +1,4 @@
-"""No method returns a map worse than its start (issue 28, item 2; docs/never_worse.md).
+"""No method returns a map worse than its start (docs/never_worse.md).
 
 What runs by default (CI): the registry's rule on toy methods; the cheap methods (lm, local-lm,
 mm-pgo at a reduced budget) through the registry on every registered dataset but city10k, n = 7,

@@ -1,5 +1,5 @@
-"""Restart safety on graphs of tiny residuals (issue 16 item 6): mm-pgo and RBCD (ml-pgo,
-cc-pgo) never end above their start, and near-zero objectives do not trigger restarts."""
+"""Restart safety on graphs of tiny residuals (docs/mm_pgo.md, docs/rbcd.md): mm-pgo and RBCD
+(ml-pgo, cc-pgo) never end above their start, and near-zero objectives do not trigger restarts."""
 
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def test_tiny_residual_loop_never_ends_above_its_start(small_graph, name: str):
 @pytest.mark.dataset
 @pytest.mark.slow
 def test_m3500_truth_at_tiny_noise_ml_pgo_restarts_rarely_and_converges():
-    # issue 16 item 6: before the fix ml-pgo restarted ~every round here (the rounding error of
+    # before the restart fix ml-pgo restarted ~every round here (the rounding error of
     # ½⟨X, QX⟩ exceeded the restart tolerance) and stopped its local updates at the absolute
     # gradient tolerance 1e-2, ~1 % above the optimum.
     graph = _resampled(require_dataset("m3500"), 1e-4)
