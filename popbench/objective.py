@@ -139,37 +139,38 @@ class Linearisation(NamedTuple):
     jac_head: np.ndarray
 
 
-def _rotated_residuals(
+def _unwhitened_linearisation(
     graph: PoseGraph, poses: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The residuals of eq. 1 ``(M, 3)``, ``R_pᵀ`` ``(M, 2, 2)`` and ``∂r_t/∂θ_p =
-    −J R_pᵀ (t_q − t_p)`` ``(M, 2)``: what both linearisations start from."""
-    rot_t = np.swapaxes(se2.rotation(poses[graph.tails, 2]), -1, -2)  # R_pᵀ
-    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
-    d_theta_p = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
-    return residuals(graph, poses), rot_t, d_theta_p
-
-
-def linearise(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisation:
-    """Whitened residuals of eq. 1 and their analytic Jacobians (additive pose increments).
+    """The residuals ``r`` of eq. 1 ``(M, 3)`` and their Jacobians with respect to the tail and
+    head poses ``(M, 3, 3)`` (additive increments): what both linearisations whiten.
 
     ``∂r_t/∂t_p = −R_pᵀ``, ``∂r_t/∂θ_p = −J R_pᵀ (t_q − t_p)``, ``∂r_t/∂t_q = R_pᵀ``,
     ``∂r_θ/∂θ_p = −1``, ``∂r_θ/∂θ_q = 1``, with ``J = R(π/2)``.
     """
-    poses = graph.poses if poses is None else poses
-    r, rot_t, d_theta_p = _rotated_residuals(graph, poses)
-    kappa, tau = weights(graph.information)
-    sqrt_tau, sqrt_kappa = np.sqrt(tau), np.sqrt(kappa)
+    rot_t = np.swapaxes(se2.rotation(poses[graph.tails, 2]), -1, -2)  # R_pᵀ
+    delta = poses[graph.heads, :2] - poses[graph.tails, :2]
     m = graph.num_edges
     jac_tail = np.zeros((m, 3, 3))
     jac_head = np.zeros((m, 3, 3))
-    jac_tail[:, :2, :2] = -sqrt_tau[:, None, None] * rot_t
-    jac_tail[:, :2, 2] = sqrt_tau[:, None] * d_theta_p
-    jac_tail[:, 2, 2] = -sqrt_kappa
-    jac_head[:, :2, :2] = sqrt_tau[:, None, None] * rot_t
-    jac_head[:, 2, 2] = sqrt_kappa
-    errors = np.column_stack([sqrt_tau[:, None] * r[:, :2], sqrt_kappa * r[:, 2]])
-    return Linearisation(errors, jac_tail, jac_head)
+    jac_tail[:, :2, :2] = -rot_t
+    jac_tail[:, :2, 2] = -(_J @ np.einsum("mij,mj->mi", rot_t, delta)[..., None])[..., 0]
+    jac_tail[:, 2, 2] = -1.0
+    jac_head[:, :2, :2] = rot_t
+    jac_head[:, 2, 2] = 1.0
+    return residuals(graph, poses), jac_tail, jac_head
+
+
+def linearise(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisation:
+    """Whitened residuals of eq. 1 and their analytic Jacobians (additive pose increments):
+    each row of :func:`_unwhitened_linearisation` scaled by ``(√τ, √τ, √κ)``."""
+    poses = graph.poses if poses is None else poses
+    r, jac_tail, jac_head = _unwhitened_linearisation(graph, poses)
+    kappa, tau = weights(graph.information)
+    row_weights = np.sqrt(np.column_stack([tau, tau, kappa]))  # (M, 3)
+    return Linearisation(
+        r * row_weights, jac_tail * row_weights[:, :, None], jac_head * row_weights[:, :, None]
+    )
 
 
 def linearise_chi2(graph: PoseGraph, poses: np.ndarray | None = None) -> Linearisation:
@@ -180,15 +181,8 @@ def linearise_chi2(graph: PoseGraph, poses: np.ndarray | None = None) -> Lineari
     are those of :func:`linearise` before whitening.
     """
     poses = graph.poses if poses is None else poses
-    r, rot_t, d_theta_p = _rotated_residuals(graph, poses)
+    r, jac_tail, jac_head = _unwhitened_linearisation(graph, poses)
     m = graph.num_edges
-    jac_tail = np.zeros((m, 3, 3))
-    jac_head = np.zeros((m, 3, 3))
-    jac_tail[:, :2, :2] = -rot_t
-    jac_tail[:, :2, 2] = d_theta_p
-    jac_tail[:, 2, 2] = -1.0
-    jac_head[:, :2, :2] = rot_t
-    jac_head[:, 2, 2] = 1.0
     whiten = np.zeros((m, 3, 3))  # Lᵀ A
     whiten[:, :2, :2] = np.swapaxes(se2.rotation(graph.measurements[:, 2]), -1, -2)
     whiten[:, 2, 2] = 1.0
