@@ -218,6 +218,9 @@ class TaskConfig:
         base: "none" (the actor's Δ is the correction) or "gauss-newton" (a residual policy:
             the environment adds one Gauss–Newton step on the chosen edge, envs.sweep, and the
             actor's Δ corrects it).
+        step_rule: "clip" (the executed Δ clipped to the bounds: every committed actor was
+            trained so) or "line-search" (unclipped, scaled so that no step raises the robot's
+            local F; envs.core.PGOCore, docs/environment.md "The step rule").
 
     The defaults are the paper's environment, which every checkpoint written before these
     options existed was trained in (a checkpoint without a "task" entry reads as them).
@@ -227,6 +230,7 @@ class TaskConfig:
     observation: str = "paper"
     action_scale: str = "metric"
     base: str = "none"
+    step_rule: str = "clip"
 
     def core_options(self) -> dict[str, str]:
         """The keyword options of envs.core.PGOCore."""
@@ -235,7 +239,8 @@ class TaskConfig:
 
 # The paper's environment (and that of every checkpoint without a task entry).
 PAPER_TASK = TaskConfig()
-# The environment of the issue-14 actors (docs/environment.md has the measurements behind it).
+# The environment of the trajectory-parameterised actors (docs/environment.md has the
+# measurements behind it).
 TRAJECTORY_TASK = TaskConfig(
     correction="subtree", observation="invariant", action_scale="whitened", base="gauss-newton"
 )
@@ -480,9 +485,10 @@ CPU_SMALL = TrainConfig(
         eval_interval=2_048,
     ),
 )
-# The issue-14 recipe (docs/training.md): the cpu-small networks in the trajectory-parameterised,
-# scale-free environment with the Gauss–Newton base step, an imitation phase of the expert, then
-# a short GA-SAC fine-tuning from the imitation actor. Budgets fixed before evaluation.
+# The cpu-imitation recipe (docs/training.md): the cpu-small networks in the
+# trajectory-parameterised, scale-free environment with the Gauss–Newton base step, an imitation
+# phase of the expert, then a short GA-SAC fine-tuning from the imitation actor. Budgets fixed
+# before evaluation.
 CPU_IMITATION = TrainConfig(
     model=CPU_SMALL.model,
     # 4,096 frames give 384 updates after the 1,024-frame warm-up; 128 of them critic-only

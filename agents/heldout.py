@@ -89,14 +89,17 @@ def row_label(row: str, checkpoint: str | Path) -> str:
     return checkpoint_algorithm(checkpoint) if row == "ga-sac" else row
 
 
-def episode(problem: DistributedProblem, policy: Callable[[Any], Policy]) -> list:
+def episode(
+    problem: DistributedProblem, policy: Callable[[Any], Policy], step_rule: str = "clip"
+) -> list:
     """The robots' local copies after one episode of the non-learned rows' environment
-    (:data:`POLICY_TASK`, separators placed) driven by ``policy(core)``, a function of the core
-    returning the per-step policy ``step(core) -> (edge [n], delta [n, 3])``."""
+    (:data:`POLICY_TASK` under ``step_rule``, separators placed) driven by ``policy(core)``, a
+    function of the core returning the per-step policy ``step(core) -> (edge [n], delta
+    [n, 3])``."""
     from envs.core import PGOCore
 
     n = problem.num_robots
-    core = PGOCore.for_problems([problem], POLICY_TASK)
+    core = PGOCore.for_problems([problem], dataclasses.replace(POLICY_TASK, step_rule=step_rule))
     step = policy(core)
     for _ in range(core.horizon):
         edge, delta = step(core)
@@ -145,13 +148,17 @@ def class_policy(kind: type) -> Callable[[Any], Policy]:
     return make
 
 
-def learned_episode(row: str, problem: DistributedProblem, checkpoint: str | Path) -> Episode:
+def learned_episode(
+    row: str, problem: DistributedProblem, checkpoint: str | Path, step_rule: str | None = None
+) -> Episode:
     """One deterministic episode of the actor in ``checkpoint`` (agents.methods.run_episode, in
-    the environment it was trained in) for the learned ``row``: ``learned-order`` runs it with
-    Δ := 0 in that environment with the Gauss–Newton base step (the base step alone on each edge
-    the actor chooses; the committed actors' own base), ``imitation`` / ``ga-sac`` as
-    prop-v1 runs it."""
+    the environment it was trained in, under ``step_rule`` where given) for the learned ``row``:
+    ``learned-order`` runs it with Δ := 0 in that environment with the Gauss–Newton base step
+    (the base step alone on each edge the actor chooses; the committed actors' own base),
+    ``imitation`` / ``ga-sac`` as prop-v1 runs it."""
     actor, task = cached_actor(str(checkpoint), "cpu")
+    if step_rule is not None:
+        task = dataclasses.replace(task, step_rule=step_rule)
     correction = row != "learned-order"
     if not correction:
         task = dataclasses.replace(task, base="gauss-newton")
@@ -161,23 +168,26 @@ def learned_episode(row: str, problem: DistributedProblem, checkpoint: str | Pat
 
 def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any]) -> list:
     """The robots' local copies that ``row`` hands to the consensus (a learned row runs the
-    actor of ``spec["checkpoint"]``, the policy row the policy of ``spec["policy"]``)."""
+    actor of ``spec["checkpoint"]``, the policy row the policy of ``spec["policy"]``); the
+    episode rows under ``spec["step_rule"]`` (envs.core.PGOCore; default ``"clip"``)."""
     from envs.expert import Expert
     from envs.sweep import GaussNewtonSweep
     from envs.tree import place_separators
 
     if row == "no-op":
         return place_separators(problem)
+    rule = spec.get("step_rule", "clip")
     if row == "random":
-        return episode(problem, random_policy(np.random.default_rng(spec["problem_seed"])))
+        rng = np.random.default_rng(spec["problem_seed"])
+        return episode(problem, random_policy(rng), rule)
     if row == "greedy":
-        return episode(problem, greedy_policy())
+        return episode(problem, greedy_policy(), rule)
     if row == "gn-sweep":
-        return episode(problem, class_policy(GaussNewtonSweep))
+        return episode(problem, class_policy(GaussNewtonSweep), rule)
     if row == "expert":
-        return episode(problem, class_policy(Expert))
+        return episode(problem, class_policy(Expert), rule)
     if row in LEARNED_ROWS:
-        return learned_episode(row, problem, spec["checkpoint"]).local_poses
+        return learned_episode(row, problem, spec["checkpoint"], rule).local_poses
     if row == "local-lm":
         return local_optima(problem)[0]
     if row == "ground-truth":
@@ -247,7 +257,7 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
         }
     learned = spec["row"] in LEARNED_ROWS
     if learned:
-        run = learned_episode(spec["row"], problem, spec["checkpoint"])
+        run = learned_episode(spec["row"], problem, spec["checkpoint"], spec.get("step_rule"))
         local = run.local_poses
     else:
         local = local_estimates(spec["row"], problem, spec)

@@ -219,6 +219,7 @@ def solve_prop_v1(
     device: str = "cpu",
     consensus: str = DEFAULT_CONSENSUS,
     consensus_iterations: int = 200,
+    step_rule: str | None = None,
     **_: object,
 ) -> Result:
     """prop-v1: replicated trained actors on every local graph, then the consensus.
@@ -234,6 +235,8 @@ def solve_prop_v1(
         consensus: one of popbench.reconcile.CONSENSUS_MODES ("admm": the paper's plain ADMM;
             "aligned-admm": the robots' frames aligned first).
         consensus_iterations: ADMM iterations at most.
+        step_rule: the environment's step rule (envs.core.PGOCore: "clip" or "line-search";
+            None: the checkpoint's own, "clip" for every committed actor).
 
     Result fields
         iterations = T (actor steps). history = F of the robots' copies after each step, counted
@@ -271,6 +274,8 @@ def solve_prop_v1(
     torch.manual_seed(seed)
     checkpoint = str(checkpoint or DEFAULT_CHECKPOINT)
     actor, task = cached_actor(checkpoint, device)
+    if step_rule is not None:
+        task = dataclasses.replace(task, step_rule=step_rule)
     with torch.no_grad():
         episode = run_episode(actor, problem, budget.seconds, on_step=budget.round_done, task=task)
     graph = problem.graph

@@ -1,4 +1,4 @@
-"""The learned parts of prop-v1's actor stage on every registered dataset (issues 14, 26): the
+"""The learned parts of prop-v1's actor stage on every registered dataset: the
 held-out rows gn-sweep, learned-order, imitation, ga-sac and local-lm (agents.heldout) on the
 Table I graphs, each through the same consensus.
 

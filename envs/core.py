@@ -56,7 +56,13 @@ from envs.basestep import (
     chosen_model,
     chosen_step,
 )
-from envs.correction import move_subtree, refresh_boundary, refresh_edges, subtree_members
+from envs.correction import (
+    line_search,
+    move_subtree,
+    refresh_boundary,
+    refresh_edges,
+    subtree_members,
+)
 from envs.geometry import _gather_rows, _scatter_rows, between, compose, residuals
 from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
 from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
@@ -73,6 +79,7 @@ CORRECTIONS = ("pose", "subtree")
 OBSERVATIONS = ("paper", "invariant")
 ACTION_SCALES = ("metric", "whitened")
 BASES = ("none", "gauss-newton")
+STEP_RULES = ("clip", "line-search")
 WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened action
 
 
@@ -121,6 +128,7 @@ class PGOCore:
         terminal_bonus: add the terminal ``log`` ratio on the episode's last step (the
             paper's reward); without it the per-step rewards alone, which already telescope to
             the episode's reduction, and which a critic can read off the state.
+        step_rule: ``"clip"`` or ``"line-search"`` (below).
 
     The modes:
 
@@ -156,6 +164,16 @@ class PGOCore:
         :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
         and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step; in the
         whitened scale ``Δ`` is in units of the chosen edge's σ.
+
+    Step rule (``step_rule=``; docs/environment.md, "The step rule")
+        ``"clip"`` (default, the paper's bounded correction): the executed ``Δ`` is clipped as
+        above and the base step shortened to fit the same bounds. ``"line-search"``: nothing is
+        clipped (the base step is the full Gauss–Newton step; a trained actor's ``Δ`` keeps the
+        bound of its own output); the core executes ``α (Δ_GN + Δ)`` with the scale
+        ``α ∈`` :data:`envs.correction.LINE_SEARCH_SCALES` (0 included) that lowers the agent's
+        local F the most (:func:`envs.correction.line_search`, exact over the edges the move
+        changes), so no step raises an agent's local F. The observed base step stays the clipped
+        one in both rules (what the committed actors were trained on).
     """
 
     def __init__(
@@ -174,6 +192,7 @@ class PGOCore:
         place_separators: bool | None = None,
         base: str = "none",
         terminal_bonus: bool = True,
+        step_rule: str = "clip",
     ) -> None:
         for name, value, allowed in (
             ("correction", correction, CORRECTIONS),
@@ -190,6 +209,9 @@ class PGOCore:
         self.place = correction == "subtree" if place_separators is None else place_separators
         if base not in BASES:
             raise ValueRangeError("base", base, ", ".join(BASES))
+        if step_rule not in STEP_RULES:
+            raise ValueRangeError("step_rule", step_rule, ", ".join(STEP_RULES))
+        self.step_rule = step_rule
         self.base, self.terminal_bonus = base, terminal_bonus
         if reward not in REWARDS:
             raise ValueRangeError("reward", reward, ", ".join(REWARDS))
@@ -211,6 +233,13 @@ class PGOCore:
         )
         #: what the base step and the read-out need of the modes (envs.basestep, envs.readout)
         self.step_modes = StepModes(correction, self.delta_max, self.action_bound, whitened)
+        #: the modes of the executed base step: unbounded under the line search
+        unbounded = torch.full((3,), torch.inf, dtype=dtype, device=self.device)
+        self.execute_modes = (
+            StepModes(correction, unbounded, unbounded, whitened)
+            if step_rule == "line-search"
+            else self.step_modes
+        )
         self.readout_modes = ReadoutModes(observation == "invariant", whitened)
         self.problems: list[DistributedProblem | None] = [None] * batch
         self._state: CoreState | None = None
@@ -392,16 +421,19 @@ class PGOCore:
         inside = subtree_members(t, self.correction, flat_edge)
         crossing = boundary(t, inside)  # the same edges before and after the move
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            delta = delta + chosen_step(t, self.step_modes, flat_edge, crossing).view(b, n, 3)
-        clipped = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
+            delta = delta + chosen_step(t, self.execute_modes, flat_edge, crossing).view(b, n, 3)
+        executed = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
+        if self.step_rule == "line-search":
+            scale = line_search(t, self.correction, poses, flat_edge, executed, crossing)
+            executed = executed * scale
         previous = t.loss.clone()
         if self.correction == "subtree":
-            move_subtree(t, self.correction, poses, flat_edge, clipped, inside)
+            move_subtree(t, self.correction, poses, flat_edge, executed, inside)
             change = refresh_boundary(t, crossing, self.reward_kind)
             refreshed = crossing.crossing
         else:
             x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
-            moved = compose(x_p, between(x_p, x_q) + clipped)  # eq. C
+            moved = compose(x_p, between(x_p, x_q) + executed)  # eq. C
             _scatter_rows(poses, head, moved)
             incident = _gather_rows(t.incident.view(g, -1, self.dims.degree), head).squeeze(1)
             change = refresh_edges(t, incident)
@@ -438,7 +470,7 @@ class PGOCore:
     def base_step(self, edge: torch.Tensor) -> torch.Tensor:
         """``(B, n, 3)`` the Gauss–Newton step Δ_GN of each agent's ``edge (B, n)`` (0 off the
         tree), in the action's units (:func:`envs.basestep.chosen_step`)."""
-        step = chosen_step(self.state, self.step_modes, *self._chosen_boundary(edge))
+        step = chosen_step(self.state, self.execute_modes, *self._chosen_boundary(edge))
         return step.view(self.batch, self.num_agents, 3)
 
     def _chosen_boundary(self, edge: torch.Tensor) -> tuple[torch.Tensor, Boundary]:
@@ -451,13 +483,17 @@ class PGOCore:
     def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
         ``edge (G, 1)`` (``G = B·n``): clipped to the action bound, converted back from the
-        whitened units (``action_scale="whitened"``), clipped to ``Δmax``."""
-        bound = self.action_bound
-        delta = torch.maximum(torch.minimum(delta, bound), -bound)
+        whitened units (``action_scale="whitened"``), clipped to ``Δmax``; under the line search
+        converted only."""
+        clip = self.step_rule == "clip"
+        if clip:
+            delta = torch.maximum(torch.minimum(delta, self.action_bound), -self.action_bound)
         if self.action_scale == "whitened":
             g = edge.shape[0]
             inverse_root = self.state.inverse_sqrt_information.view(g, -1, 3, 3)
             delta = (_gather_rows(inverse_root, edge) @ delta.unsqueeze(-1)).squeeze(-1)
+        if not clip:
+            return delta
         return torch.maximum(torch.minimum(delta, self.delta_max), -self.delta_max)
 
     def subtree_move(

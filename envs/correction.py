@@ -16,6 +16,9 @@ import torch
 from envs.geometry import _gather_rows, _offset, _scatter_rows, between, compose, inverse, residuals
 from popbench.objective import edge_costs
 
+#: the step scales the ``line-search`` step rule tries (:func:`line_search`; 0: no move)
+LINE_SEARCH_SCALES = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.0)
+
 if TYPE_CHECKING:
     from envs.basestep import Boundary
     from envs.state import CoreState
@@ -36,6 +39,24 @@ def subtree_members(t: CoreState, correction: str, edge: torch.Tensor) -> torch.
     return (position >= start) & (position < stop)
 
 
+def rigid_motion(
+    t: CoreState, correction: str, poses: torch.Tensor, edge: torch.Tensor, delta: torch.Tensor
+) -> torch.Tensor:
+    """``(G, K, 3)``: the world-frame rigid motion of the moved vertices that changes the
+    relative pose of each edge slot ``edge (G, 1)`` by each of the ``K`` corrections ``delta
+    (G, K, 3)`` (metric), at ``poses (G, V+1, 3)``."""
+    g = edge.shape[0]
+    tail = torch.gather(t.tails.view(g, -1), 1, edge)
+    head = torch.gather(t.heads.view(g, -1), 1, edge)
+    mover = head if correction == "pose" else torch.gather(t.mover.view(g, -1), 1, edge)
+    x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
+    relative = between(x_p, x_q) + delta
+    moves_head = (mover == head).unsqueeze(-1)
+    old = torch.where(moves_head, x_q, x_p)
+    new = torch.where(moves_head, compose(x_p, relative), compose(x_q, inverse(relative)))
+    return compose(new, inverse(old))
+
+
 def move_subtree(
     t: CoreState,
     correction: str,
@@ -47,22 +68,45 @@ def move_subtree(
     """Move the vertices ``inside`` (:func:`subtree_members`) of ``poses (G, V+1, 3)`` rigidly,
     in place, so that the relative pose of each edge slot ``edge (G, 1)`` changes by ``delta
     (G, 1, 3)``; only the moved rows are computed and written."""
-    g = edge.shape[0]
-    tail = torch.gather(t.tails.view(g, -1), 1, edge)
-    head = torch.gather(t.heads.view(g, -1), 1, edge)
-    if correction == "pose":
-        mover = head
-    else:
-        mover = torch.gather(t.mover.view(g, -1), 1, edge)
-    x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
-    relative = between(x_p, x_q) + delta
-    moves_head = (mover == head).unsqueeze(-1)
-    old = torch.where(moves_head, x_q, x_p)
-    new = torch.where(moves_head, compose(x_p, relative), compose(x_q, inverse(relative)))
-    transform = compose(new, inverse(old))  # the subtree's rigid motion, world frame
+    transform = rigid_motion(t, correction, poses, edge, delta)
     rows = inside.flatten().nonzero().squeeze(-1)
     flat = poses.view(-1, 3)
     flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
+
+
+def line_search(
+    t: CoreState,
+    correction: str,
+    poses: torch.Tensor,
+    edge: torch.Tensor,
+    delta: torch.Tensor,
+    crossing: Boundary,
+) -> torch.Tensor:
+    """``(G, 1, 1)``: the scale α ∈ :data:`LINE_SEARCH_SCALES` of the metric correction ``delta
+    (G, 1, 3)`` on the edge slots ``edge (G, 1)`` that lowers each agent's local F the most.
+
+    A rigid move changes only the residuals of the edges that cross the moved set's boundary
+    (``crossing``), so the change of F (paper eq. 1, the measurements as targets) is exact over
+    them; α = 0 (no move) is a candidate, hence no scaled step raises F."""
+    scales = torch.tensor(LINE_SEARCH_SCALES, dtype=delta.dtype, device=delta.device)
+    motion = rigid_motion(t, correction, poses, edge, delta * scales.view(1, -1, 1))
+    flat = poses.reshape(-1, 3)
+    x_tail, x_head = flat[crossing.tail_rows], flat[crossing.head_rows]
+    moved = motion[crossing.agent]  # (C, K, 3), one crossing edge per row
+    inside_head = crossing.head_inside.view(-1, 1, 1)
+    new_tail = torch.where(inside_head, x_tail.unsqueeze(1), compose(moved, x_tail.unsqueeze(1)))
+    new_head = torch.where(inside_head, compose(moved, x_head.unsqueeze(1)), x_head.unsqueeze(1))
+    measurement = t.measurements.view(-1, 3)[crossing.slots]
+    kappa, tau = t.kappa.view(-1)[crossing.slots], t.tau.view(-1)[crossing.slots]
+    before = edge_costs(_offset(between(x_tail, x_head), measurement), kappa, tau)
+    after = edge_costs(
+        _offset(between(new_tail, new_head), measurement.unsqueeze(1)),
+        kappa.unsqueeze(1),
+        tau.unsqueeze(1),
+    )
+    change = torch.zeros(edge.shape[0], scales.numel(), dtype=delta.dtype, device=delta.device)
+    change.index_add_(0, crossing.agent, after - before.unsqueeze(1))
+    return scales[change.argmin(-1)].view(-1, 1, 1)
 
 
 def refresh_boundary(t: CoreState, crossing: Boundary, reward: str) -> torch.Tensor:

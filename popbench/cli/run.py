@@ -360,6 +360,12 @@ def heldout_command(
         help="Outliers injected into every problem (share of the loop closures); adds the "
         "learned rows' gate_auc, gate_precision and gate_recall.",
     ),
+    step_rule: str = typer.Option(
+        "clip",
+        help="The environment's step rule in every episode row: clip (the executed correction "
+        "clipped to its bounds, as the actors were trained) | line-search (unclipped, scaled so "
+        "that no step raises a robot's local F; docs/environment.md).",
+    ),
     policy: str = typer.Option(
         None,
         help="Score your own policy as one more row: MODULE:ATTR or path/to/file.py:ATTR, a "
@@ -395,6 +401,7 @@ def heldout_command(
     problem by problem, with 95 % CIs; a --policy row against no-op, gn-sweep, imitation,
     ga-sac and local-lm), heldout.md, heldout.png/.pdf and manifest.json.
     """
+    from envs.core import STEP_RULES
     from popbench.harness.heldout import (
         ROW_ALIASES,
         ROWS,
@@ -426,6 +433,7 @@ def heldout_command(
         imitation_checkpoint=imitation_checkpoint,
         out=out,
         outlier_rate=outlier_rate,
+        step_rule=options.names(step_rule, STEP_RULES, "--step-rule")[0],
         policy=policy,
         policy_arg=policy_arg,
         policy_name=policy_name,

@@ -81,6 +81,8 @@ class HeldoutConfig:
         outlier_rate: outliers injected into every held-out problem (popbench.outliers, the
             loop-closure candidates; 0 = none, the cells of before); with it the learned rows
             are scored as outlier classifiers (gate_auc, gate_precision, gate_recall).
+        step_rule: the environment's step rule in every episode row (envs.core.PGOCore:
+            ``"clip"``, the trained actors' own, or ``"line-search"``).
     """
 
     noise: tuple[str, ...] = ("V2",)
@@ -97,6 +99,7 @@ class HeldoutConfig:
     policy_arg: str | None = None
     policy_name: str | None = None
     policy_env: dict[str, Any] = dataclasses.field(default_factory=dict)
+    step_rule: str = "clip"
 
 
 def canonical_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
@@ -150,6 +153,8 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                     }
                     if config.outlier_rate > 0:  # absent otherwise: earlier cells stay valid
                         spec["outlier_rate"] = config.outlier_rate
+                    if config.step_rule != "clip":  # likewise
+                        spec["step_rule"] = config.step_rule
                     if row in checkpoints:
                         if checkpoints[row] is None:
                             continue

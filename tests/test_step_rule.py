@@ -1,0 +1,93 @@
+"""The environment's step rule (envs.core.PGOCore ``step_rule``): the line search never lets a
+step raise an agent's local F, where the clipped rule can; the scale it picks is the best of its
+candidates; the rule travels with the task (docs/environment.md, "The step rule")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from agents.config import TRAJECTORY_TASK, TaskConfig
+from envs.core import PGOCore
+from envs.correction import LINE_SEARCH_SCALES
+from envs.expert import Expert
+from popbench import objective
+from popbench.errors import ValueRangeError
+from popbench.synthetic import make_problem
+
+SMALL = {"robots": 3, "poses_per_robot": 20}
+TASKS = {
+    "subtree, base step": TaskConfig(**{**TRAJECTORY_TASK.core_options()}),
+    "subtree, no base": TaskConfig("subtree", "invariant", "whitened", "none"),
+    "pose, metric": TaskConfig("pose", "paper", "metric", "none"),
+}
+
+
+def random_episode(task: TaskConfig, rule: str, seed: int) -> np.ndarray:
+    """``(T + 1, n)`` every agent's local F along one episode of uniformly random edges and
+    corrections drawn over twice the action bound (the rule, not the policy, keeps them safe)."""
+    problem = make_problem(seed=seed, **SMALL)
+    core = PGOCore.for_problems([problem], TaskConfig(**{**task.core_options(), "step_rule": rule}))
+    rng = np.random.default_rng(seed)
+    bound = 2 * core.action_bound.numpy()
+    losses = [core.state.loss[0].numpy().copy()]
+    for _ in range(core.horizon):
+        mask = core.action_mask()[0].numpy()
+        edge = np.where(mask, rng.random(mask.shape), -1.0).argmax(-1)
+        delta = rng.uniform(-bound, bound, (mask.shape[0], 3))
+        core.step(torch.as_tensor(edge).view(1, -1), torch.as_tensor(delta).view(1, -1, 3))
+        losses.append(core.state.loss[0].numpy().copy())
+    return np.array(losses)
+
+
+@pytest.mark.parametrize("name", list(TASKS))
+def test_line_search_never_raises_a_local_f_where_clipping_does(name: str) -> None:
+    raised_by_clip = 0
+    for seed in range(3):
+        searched = random_episode(TASKS[name], "line-search", seed)
+        rises = np.diff(searched, axis=0)
+        assert (rises <= 1e-9 * (1.0 + searched[:-1])).all(), rises.max()
+        assert searched[-1].sum() < searched[0].sum()  # and it still moves
+        clipped = random_episode(TASKS[name], "clip", seed)
+        raised_by_clip += int((np.diff(clipped, axis=0) > 0).any())
+    assert raised_by_clip > 0  # the random policy does raise F without the search
+
+
+def test_the_core_keeps_its_loss_equal_to_the_local_objective() -> None:
+    problem = make_problem(seed=7, **SMALL)
+    task = TaskConfig(**{**TRAJECTORY_TASK.core_options(), "step_rule": "line-search"})
+    core = PGOCore.for_problems([problem], task)
+    expert = Expert(core)
+    for _ in range(core.horizon):
+        core.step(*expert.act())
+    copies = core.local_poses(0)
+    for agent, (local, poses) in enumerate(zip(problem.local_graphs, copies, strict=True)):
+        exact = objective.objective(local.graph, poses)
+        assert float(core.state.loss[0, agent]) == pytest.approx(exact, rel=1e-9, abs=1e-9)
+
+
+def test_the_chosen_scale_is_the_best_candidate() -> None:
+    problem = make_problem(seed=2, **SMALL)
+    task = TaskConfig(**{**TRAJECTORY_TASK.core_options(), "base": "none"})
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        edge = torch.as_tensor(rng.integers(0, 10, 3)).view(1, 3)
+        delta = torch.as_tensor(rng.uniform(-8, 8, (1, 3, 3)))
+        outcomes = []
+        for scale in LINE_SEARCH_SCALES:  # each candidate executed under the clip-free rule
+            core = PGOCore.for_problems([problem], task, delta_max=(1e9,) * 3)
+            core.action_bound.fill_(1e9)
+            core.step(edge, scale * delta)
+            outcomes.append(core.state.loss[0].numpy().copy())
+        searched = PGOCore.for_problems(
+            [problem], TaskConfig(**{**task.core_options(), "step_rule": "line-search"})
+        )
+        searched.step(edge, delta)
+        best = np.min(outcomes, axis=0)
+        np.testing.assert_allclose(searched.state.loss[0].numpy(), best, rtol=1e-9)
+
+
+def test_an_unknown_step_rule_is_refused() -> None:
+    with pytest.raises(ValueRangeError, match="step_rule"):
+        PGOCore.for_problems([make_problem(seed=0, **SMALL)], step_rule="trust-region")
