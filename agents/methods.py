@@ -4,7 +4,9 @@ prop-v1
     1. Every robot holds its local graph (owned poses + separator copies) and runs the shared
        trained actor (actor replication: the n = 7 actor serves any n) deterministically for one
        episode: T = max_i |E_i| steps, each robot correcting one of its unprocessed local edges per
-       step (the environment's dynamics, envs.core.PGOCore with the measurement reward).
+       step (the environment's dynamics, envs.core.PGOCore with the measurement reward), by
+       default under the line-search step rule (each executed correction scaled so that it does
+       not raise the robot's local F; docs/environment.md, "The step rule").
        The robots' actors are batched into one forward per step and run incrementally
        (agents.inference.IncrementalPolicy: only the L-hop neighbourhood of the moved poses is
        recomputed). A robot keeps its episode's result only where the episode lowered its local
@@ -49,6 +51,9 @@ if TYPE_CHECKING:
     from envs.core import PGOCore
 
 DEFAULT_CHECKPOINT = method_record("prop-v1").checkpoint_path()  # the record's checkpoint
+# prop-v1's step rule (envs.core.PGOCore): chosen on 30 held-out SLAM-shaped maps (docs/training.md,
+# "The step rule at inference"), where it lowered F after the consensus against the clipped rule
+DEFAULT_STEP_RULE = "line-search"
 CHECKPOINT_DIR = DEFAULT_CHECKPOINT.parent
 PROP_V2_LM_ITERATIONS = 75
 
@@ -219,7 +224,7 @@ def solve_prop_v1(
     device: str = "cpu",
     consensus: str = DEFAULT_CONSENSUS,
     consensus_iterations: int = 200,
-    step_rule: str | None = None,
+    step_rule: str | None = DEFAULT_STEP_RULE,
     **_: object,
 ) -> Result:
     """prop-v1: replicated trained actors on every local graph, then the consensus.
@@ -235,8 +240,9 @@ def solve_prop_v1(
         consensus: one of popbench.reconcile.CONSENSUS_MODES ("admm": the paper's plain ADMM;
             "aligned-admm": the robots' frames aligned first).
         consensus_iterations: ADMM iterations at most.
-        step_rule: the environment's step rule (envs.core.PGOCore: "clip" or "line-search";
-            None: the checkpoint's own, "clip" for every committed actor).
+        step_rule: the environment's step rule (envs.core.PGOCore: "clip" or "line-search",
+            :data:`DEFAULT_STEP_RULE`: no step raises a robot's local F; None: the checkpoint's
+            own, "clip" for every committed actor).
 
     Result fields
         iterations = T (actor steps). history = F of the robots' copies after each step, counted

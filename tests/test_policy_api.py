@@ -176,7 +176,8 @@ def rows_of(config: heldout.HeldoutConfig) -> pd.DataFrame:
 
 
 def test_a_plain_callable_is_scored_as_the_shipped_greedy_row(tmp_path) -> None:
-    """The same rule as a user's plain callable, in the greedy row's environment: the same F,
+    """The same rule as a user's plain callable, in the greedy row's environment (its task and
+    the protocol's step rule): the same F,
     ATE and local F on every problem (the episode, the consensus and the scoring are the
     protocol's), and its row is paired against the references."""
     from agents.heldout import POLICY_TASK
@@ -188,7 +189,10 @@ def test_a_plain_callable_is_scored_as_the_shipped_greedy_row(tmp_path) -> None:
         rows=("no-op", "greedy"),
         out=tmp_path,
         policy=f"{__file__}:greedy_half",
-        policy_env=dataclasses.asdict(POLICY_TASK),
+        policy_env={
+            **dataclasses.asdict(POLICY_TASK),
+            "step_rule": heldout.HeldoutConfig.step_rule,
+        },
     )
     frame = rows_of(config)
     mine, shipped = frame.loc["greedy_half", METRICS], frame.loc["greedy", METRICS]
@@ -200,7 +204,8 @@ def test_a_plain_callable_is_scored_as_the_shipped_greedy_row(tmp_path) -> None:
 
 def test_a_torchrl_actor_module_is_scored_as_the_shipped_ga_sac_row(tmp_path) -> None:
     """The committed GA-SAC actor as a TensorDictModule (GASACPolicy) run on the TorchRL env of
-    its task gives the ga-sac row's numbers (which run it incrementally on the core)."""
+    its task, under the protocol's step rule, gives the ga-sac row's numbers (which run it
+    incrementally on the core)."""
     from agents.heldout import GA_SAC_CHECKPOINT
     from agents.methods import cached_actor
 
@@ -214,7 +219,7 @@ def test_a_torchrl_actor_module_is_scored_as_the_shipped_ga_sac_row(tmp_path) ->
         policy=f"{__file__}:shipped_actor",
         policy_arg=str(GA_SAC_CHECKPOINT),
         policy_name="mine",
-        policy_env=dataclasses.asdict(task),
+        policy_env={**dataclasses.asdict(task), "step_rule": heldout.HeldoutConfig.step_rule},
     )
     frame = rows_of(config)
     mine, shipped = frame.loc["mine", METRICS], frame.loc["ga-sac", METRICS]

@@ -361,10 +361,11 @@ def heldout_command(
         "learned rows' gate_auc, gate_precision and gate_recall.",
     ),
     step_rule: str = typer.Option(
-        "clip",
-        help="The environment's step rule in every episode row: clip (the executed correction "
-        "clipped to its bounds, as the actors were trained) | line-search (unclipped, scaled so "
-        "that no step raises a robot's local F; docs/environment.md).",
+        "line-search",
+        help="The environment's step rule in every episode row: line-search (prop-v1's: the "
+        "executed correction unclipped, scaled so that no step raises a robot's local F) | clip "
+        "(clipped to its bounds, as the actors were trained; the tables before 2026-12-05); "
+        "docs/environment.md.",
     ),
     policy: str = typer.Option(
         None,

@@ -112,6 +112,7 @@ def score_run(run: Path, problems: int) -> pd.DataFrame:
                 poses_per_robot=identity.poses_per_robot,
                 rows=("ga-sac",),
                 checkpoint=found[point],
+                step_rule="clip",  # the environment the algorithms are trained in
                 out=run / "curve-cells" / f"actor-{point:07d}",
             )
             run_heldout(config)

@@ -82,7 +82,8 @@ class HeldoutConfig:
             loop-closure candidates; 0 = none, the cells of before); with it the learned rows
             are scored as outlier classifiers (gate_auc, gate_precision, gate_recall).
         step_rule: the environment's step rule in every episode row (envs.core.PGOCore:
-            ``"clip"``, the trained actors' own, or ``"line-search"``).
+            ``"clip"``, the one the actors were trained in, or ``"line-search"``, prop-v1's
+            default, agents.methods.DEFAULT_STEP_RULE).
     """
 
     noise: tuple[str, ...] = ("V2",)
@@ -99,7 +100,7 @@ class HeldoutConfig:
     policy_arg: str | None = None
     policy_name: str | None = None
     policy_env: dict[str, Any] = dataclasses.field(default_factory=dict)
-    step_rule: str = "clip"
+    step_rule: str = "line-search"
 
 
 def canonical_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
@@ -153,7 +154,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                     }
                     if config.outlier_rate > 0:  # absent otherwise: earlier cells stay valid
                         spec["outlier_rate"] = config.outlier_rate
-                    if config.step_rule != "clip":  # likewise
+                    if config.step_rule != "clip":  # absent for the cells before the option
                         spec["step_rule"] = config.step_rule
                     if row in checkpoints:
                         if checkpoints[row] is None:
