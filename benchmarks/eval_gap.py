@@ -24,7 +24,8 @@ F_ll / F*, the consensus's own share.
 actor run K episodes in turn, each under prop-v1's keep rule (a robot whose local F did not
 fall keeps its start copy) and from the previous one's kept copies assembled (each pose from its
 owner; the separators re-placed from the robot's own neighbours at each episode's start), and F
-after the consensus of the K-th episode's kept copies.
+(and F_aligned) after the consensus of the K-th episode's kept copies, with the robots' local F
+summed after each pass against local-lm's.
 
     POPBENCH_DATA=/work/shared/datasets .venv/bin/python benchmarks/eval_gap.py \
         --json results/gap-decomposition/gap.json
@@ -202,27 +203,46 @@ def multi_pass(
     name: str, robots: int, counts: list[int], checkpoint: Path, consensus: str
 ) -> dict[str, Any]:
     """F after the consensus after K passes, for each K in ``counts``, of gn-sweep and the
-    actor of ``checkpoint`` (module docstring, keep rule in every pass), with the number of
-    robots whose episode raised their local F in each pass."""
+    actor of ``checkpoint`` (module docstring, keep rule in every pass), with F_aligned there,
+    and per pass the robots' local F summed at its start and kept end and the number of robots
+    whose episode raised theirs; local-lm's F and summed local F as the reference."""
+    from agents.heldout import robots_local_f
+
     problem = distributed_problem(name, robots, "odometry")
-    record: dict[str, Any] = {"dataset": name}
+    optima = local_estimates("local-lm", problem, {})
+    record: dict[str, Any] = {
+        "dataset": name,
+        "local-lm": {
+            "F": objective.objective(problem.graph, reconcile(problem, optima, consensus).poses),
+            "local_F": robots_local_f(problem, optima),
+        },
+    }
     for row in ("gn-sweep", "ga-sac"):
-        current, by_k, rose, started = problem, {}, [], time.perf_counter()
+        current, started = problem, time.perf_counter()
+        cells: dict[str, Any] = {"F": {}, "F_aligned": {}, "start_local_F": [], "local_F": []}
+        cells["robots_rose"] = []
         for k in range(1, max(counts) + 1):
             _, start, end, copies = run_row(row, current, {"ga-sac": checkpoint})
-            rose.append(int(np.count_nonzero(end > start)))
+            cells["robots_rose"].append(int(np.count_nonzero(end > start)))
+            cells["start_local_F"].append(float(start.sum()))
+            cells["local_F"].append(float(np.minimum(start, end).sum()))  # the kept copies'
             if k in counts:
                 reconciled = reconcile(problem, copies, consensus)
-                by_k[k] = objective.objective(problem.graph, reconciled.poses)
+                cells["F"][k] = objective.objective(problem.graph, reconciled.poses)
+                cells["F_aligned"][k] = reconciled.F_aligned
                 print(
-                    f"{name:>10} {row:>8} K={k} F {by_k[k]:.6g} "
+                    f"{name:>10} {row:>8} K={k} F {cells['F'][k]:.6g} F_aligned "
+                    f"{reconciled.F_aligned:.6g} local F {cells['local_F'][-1]:.6g} "
                     f"[{time.perf_counter() - started:.1f} s]",
                     flush=True,
                 )
             current = DistributedProblem(
                 problem.graph.replace(poses=problem.assemble(copies)), "given", problem.outlier_mask
             )
-        record[row] = {"F": by_k, "robots_rose_per_pass": rose, "s": time.perf_counter() - started}
+        cells["s"] = time.perf_counter() - started
+        record[row] = cells
+    reference = record["local-lm"]
+    print(f"{name:>10} local-lm F {reference['F']:.6g} local F {reference['local_F']:.6g}")
     return record
 
 
