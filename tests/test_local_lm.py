@@ -68,3 +68,43 @@ def test_local_lm_lowers_F_through_either_consensus(problem, mode):
 def test_unknown_consensus_is_one_line_error(problem):
     with pytest.raises(ValueRangeError, match="admm"):
         reconcile(problem, problem.split(), "gauss")
+
+
+def test_held_copies_stay_at_the_start_and_the_rest_is_optimal(problem):
+    held, _ = local_lm.local_optima(problem, copy_weight=np.inf)
+    free, _ = local_lm.local_optima(problem)
+    for local, poses, optimum in zip(problem.local_graphs, held, free, strict=True):
+        graph, owned = local.graph, local.owned_count
+        assert np.array_equal(poses[owned:], problem.graph.poses[local.separator_ids])
+        fixed = graph.replace(fixed=np.arange(owned, local.num_vertices))
+        tighter = lm.solve_graph(
+            fixed, poses, 200, relative_tolerance=1e-15, gradient_tolerance=1e-12
+        ).poses
+        f_held = objective.objective(graph, poses)
+        assert objective.objective(graph, tighter) <= f_held <= objective.objective(graph) + 1e-9
+        assert f_held >= objective.objective(graph, optimum) - 1e-9  # the free optimum is lower
+
+
+def test_copy_priors_add_a_weighted_disagreement_and_span_free_to_held(problem):
+    local = problem.local_graphs[1]
+    targets = problem.graph.poses[local.separator_ids]
+    poses = local.graph.poses + 0.01 * np.arange(local.num_vertices * 3).reshape(-1, 3) % 0.07
+    stacked = np.vstack([poses, targets])
+    f_local = objective.objective(local.graph, poses)
+    one, two = (
+        objective.objective(local_lm.copy_priors(local, targets, w), stacked) - f_local
+        for w in (1.0, 2.0)
+    )
+    assert one > 0 and two == pytest.approx(2 * one, rel=1e-12)
+    assert objective.objective(
+        local_lm.copy_priors(local, targets, 1.0), np.vstack([poses, poses[local.owned_count :]])
+    ) == pytest.approx(f_local, abs=1e-12)
+    free = local_lm.local_optima(problem)[0][1]
+    held = local_lm.local_optima(problem, copy_weight=np.inf)[0][1]
+    weak = local_lm.local_optima(problem, copy_weight=1e-8)[0][1]
+    strong = local_lm.local_optima(problem, copy_weight=1e8)[0][1]
+    f = lambda x: objective.objective(local.graph, x)  # noqa: E731
+    assert f(weak) == pytest.approx(f(free), rel=1e-4)
+    assert f(strong) == pytest.approx(f(held), rel=1e-4)
+    with pytest.raises(ValueRangeError, match="copy_weight"):
+        local_lm.local_optima(problem, copy_weight=0.0)

@@ -15,9 +15,9 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
-from popbench.distributed import DistributedProblem
+from popbench.distributed import DistributedProblem, LocalGraph
 from popbench.errors import ValueRangeError
-from popbench.graph import PoseGraph
+from popbench.graph import EdgeKind, PoseGraph
 from popbench.methods import Budget, Result
 from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
 from popbench.solvers.lm import OBJECTIVES, solve_graph
@@ -32,8 +32,10 @@ def local_optima(
     excluded: np.ndarray | None = None,
     starts: list[np.ndarray] | None = None,
     cost: str = "F",
+    copy_weight: float | None = None,
 ) -> tuple[list[np.ndarray], np.ndarray]:
-    """Every robot's local graph solved by LM (its first owned pose fixed).
+    """Every robot's local graph solved by LM (its first owned pose fixed, unless
+    ``copy_weight`` ties the separator copies to their owners' estimates).
 
     Args:
         problem: the distributed problem.
@@ -45,17 +47,28 @@ def local_optima(
         starts: one ``(n_r, 3)`` start per robot (e.g. with placed separator copies); default
             the problem's start, ``problem.split()``.
         cost: the local cost, ``"F"`` (eq. 1) or ``"chi2"``.
+        copy_weight: None: the copies are free (the local optimum); ``inf``: the copies are held
+            at the problem's start ``problem.graph.poses`` (their owners' estimates before any
+            exchange) and the robot's poses are solved around them; ``w > 0``: the copies are
+            free but each is pulled to that estimate by a prior (:func:`copy_priors`, weight
+            ``w``). The gauge is then the copies (or the priors' anchors), not the first pose.
+            Not combined with ``excluded``.
 
     Returns:
         ``(local_poses, seconds)``: one ``(n_r, 3)`` optimum per robot (rows in
         ``local_vertices(r)`` order) and ``(n,)`` each robot's LM wall time [s].
     """
+    if copy_weight is not None and (excluded is not None or not copy_weight > 0):
+        raise ValueRangeError("copy_weight", copy_weight, "w > 0 or inf, without excluded")
     starts = problem.split() if starts is None else starts
     local_poses, seconds = [], np.zeros(problem.num_robots)
     for local, start in zip(problem.local_graphs, starts, strict=True):
         graph = local.graph
         started = time.perf_counter()
-        if excluded is None:
+        if copy_weight is not None and local.num_vertices > local.owned_count:
+            targets = problem.graph.poses[local.separator_ids]
+            local_poses.append(_solve_tied(local, start, targets, copy_weight, iterations, cost))
+        elif excluded is None:
             local_poses.append(solve_graph(graph, start, iterations, cost=cost).poses)
         else:
             kept = graph.edge_subset(~excluded[local.edge_ids])
@@ -63,6 +76,57 @@ def local_optima(
             local_poses.append(_solve_rooted(kept, start, iterations, cost))
         seconds[local.robot] = time.perf_counter() - started
     return local_poses, seconds
+
+
+def copy_priors(local: LocalGraph, targets: np.ndarray, weight: float) -> PoseGraph:
+    """``local.graph`` with one prior per separator copy: an anchor vertex held at the copy's
+    ``targets`` row (appended after the local vertices, in copy order; the graph's only fixed
+    poses) and an edge anchor → copy measuring the identity, with ``weight`` times the summed
+    information of the local edges at the copy. Its F at ``[poses; targets]`` is the local F
+    plus ``weight`` · Σ_copies (the copies' eq. 1 disagreement with their targets).
+
+    Args:
+        local: one robot's local graph (``n_r`` vertices, ``c`` copies).
+        targets: ``(c, 3)`` the owners' estimates of the copies.
+        weight: the priors' weight w > 0 (dimensionless).
+    """
+    graph, owned, n = local.graph, local.owned_count, local.num_vertices
+    copies = np.arange(owned, n)
+    information = np.zeros((n, 3, 3))
+    np.add.at(information, graph.tails, graph.information)
+    np.add.at(information, graph.heads, graph.information)
+    anchors = np.arange(n, n + copies.size)
+    return graph.replace(
+        poses=np.vstack([graph.poses, targets]),
+        tails=np.concatenate([graph.tails, anchors]),
+        heads=np.concatenate([graph.heads, copies]),
+        measurements=np.vstack([graph.measurements, np.zeros((copies.size, 3))]),
+        information=np.concatenate([graph.information, weight * information[copies]]),
+        kinds=np.concatenate([graph.kinds, np.full(copies.size, EdgeKind.INTER_LOOP, np.int8)]),
+        ground_truth=None,
+        robots=None,
+        fixed=anchors,
+    )
+
+
+def _solve_tied(
+    local: LocalGraph,
+    start: np.ndarray,
+    targets: np.ndarray,
+    weight: float,
+    iterations: int,
+    cost: str,
+) -> np.ndarray:
+    """``(n_r, 3)``: LM on one local graph with its copies held at ``targets`` (``weight`` =
+    inf) or pulled to them by :func:`copy_priors`, from ``start`` (held copies start there)."""
+    start = np.array(start, dtype=float)
+    if np.isinf(weight):
+        start[local.owned_count :] = targets
+        held = local.graph.replace(fixed=np.arange(local.owned_count, local.num_vertices))
+        return solve_graph(held, start, iterations, cost=cost).poses
+    tied = copy_priors(local, targets, weight)
+    poses = solve_graph(tied, np.vstack([start, targets]), iterations, cost=cost).poses
+    return poses[: local.num_vertices]
 
 
 def _solve_rooted(
