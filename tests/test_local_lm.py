@@ -108,3 +108,10 @@ def test_copy_priors_add_a_weighted_disagreement_and_span_free_to_held(problem):
     assert f(strong) == pytest.approx(f(held), rel=1e-4)
     with pytest.raises(ValueRangeError, match="copy_weight"):
         local_lm.local_optima(problem, copy_weight=0.0)
+
+
+def test_copy_targets_replace_the_start_as_the_owners_estimates(problem):
+    targets = problem.graph.ground_truth
+    held, _ = local_lm.local_optima(problem, copy_weight=np.inf, copy_targets=targets)
+    for local, poses in zip(problem.local_graphs, held, strict=True):
+        assert np.array_equal(poses[local.owned_count :], targets[local.separator_ids])

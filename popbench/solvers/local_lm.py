@@ -33,6 +33,7 @@ def local_optima(
     starts: list[np.ndarray] | None = None,
     cost: str = "F",
     copy_weight: float | None = None,
+    copy_targets: np.ndarray | None = None,
 ) -> tuple[list[np.ndarray], np.ndarray]:
     """Every robot's local graph solved by LM (its first owned pose fixed, unless
     ``copy_weight`` ties the separator copies to their owners' estimates).
@@ -53,6 +54,8 @@ def local_optima(
             free but each is pulled to that estimate by a prior (:func:`copy_priors`, weight
             ``w``). The gauge is then the copies (or the priors' anchors), not the first pose.
             Not combined with ``excluded``.
+        copy_targets: ``(N, 3)`` the owners' estimates of every global pose that
+            ``copy_weight`` ties the copies to (default ``problem.graph.poses``).
 
     Returns:
         ``(local_poses, seconds)``: one ``(n_r, 3)`` optimum per robot (rows in
@@ -66,7 +69,9 @@ def local_optima(
         graph = local.graph
         started = time.perf_counter()
         if copy_weight is not None and local.num_vertices > local.owned_count:
-            targets = problem.graph.poses[local.separator_ids]
+            targets = (problem.graph.poses if copy_targets is None else copy_targets)[
+                local.separator_ids
+            ]
             local_poses.append(_solve_tied(local, start, targets, copy_weight, iterations, cost))
         elif excluded is None:
             local_poses.append(solve_graph(graph, start, iterations, cost=cost).poses)
