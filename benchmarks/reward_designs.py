@@ -10,15 +10,20 @@ Every robot's episode ends in local copies (owned poses + separator copies); the
   edges (popbench.solvers.local_lm.copy_priors); optimum ``R2-w-opt``. R1 is w → ∞.
 * ``R1x``: as R1 with the owners' estimates after one exchange: each owner's pose at its own
   local optimum (local-lm's owned poses, each robot's frame); optimum ``R1x-opt``.
+* ``R2r-w`` / ``R2rx-w``: R0 plus w · priors on the copies' relative poses per owner
+  (local_lm.relative_priors: their shape, free of the owners' frames) at the start / at the
+  owners' local optima; optima ``R2r-w-opt`` / ``R2rx-w-opt``.
 * ``R3``: F (eq. 1) after the consensus, the team score the tables report.
 
 Rows (end states): no-op, gn-sweep, learned-order and imitation (the committed imitation actor,
-agents.heldout) and the optima local-lm (R0), R1-opt, R1x-opt, R2-w-opt (local_lm.local_optima with
-``copy_weight``). Each row is scored under every design; per problem ``rows.csv`` holds the
-scores, ``summary.md`` / ``summary.json`` the tables: F after the consensus per row with paired
-bootstrap CIs against local-lm and learned-order, the within-problem Spearman correlation of
-each design with R3 across the rows (mean over problems), and imitation − learned-order under
-each design. Problems already in ``rows.csv`` are kept (a run resumes).
+agents.heldout) and the optima local-lm (R0), R1-opt, R1x-opt, R2-w-opt, R2r-w-opt, R2rx-w-opt
+(local_lm.local_optima with ``copy_weight``). Each row is scored under every design. Per
+problem ``rows.csv``; ``summary.md`` / ``summary.json``: F after the consensus per row with
+paired bootstrap CIs against local-lm and learned-order, the within-problem Spearman
+correlation of each design with R3 across the rows (mean over problems), and imitation −
+learned-order under each design and after the consensus's frame alignment alone
+(``F_aligned``: eq. 1 of the assembled copies once every robot's map is moved rigidly, before
+the ADMM). Problems already in ``rows.csv`` are kept (a run resumes).
 
     PYTHONPATH=. .venv/bin/python benchmarks/reward_designs.py --poses-per-robot 250 \\
         --problems 20 --out results/reward-designs/p250
@@ -48,16 +53,18 @@ from popbench.distributed import DistributedProblem
 from popbench.harness.heldout import HELDOUT_SEED_BASE
 from popbench.metrics import ate, bootstrap_ci
 from popbench.reconcile import DEFAULT_CONSENSUS, reconcile
-from popbench.solvers.local_lm import copy_priors, local_optima
+from popbench.solvers.local_lm import copy_priors, local_optima, relative_priors
 from popbench.synthetic import make_problem
 
 WEIGHTS = (0.1, 1.0)
+RELATIVE_WEIGHTS = (1.0, 100.0)
 EPISODE_ROWS = ("no-op", "gn-sweep", "learned-order", "imitation")
 
 
 def designs(weights: tuple[float, ...]) -> list[str]:
     """The per-robot designs' column names, then R3."""
-    return ["R0", "R1", "R1x", *(f"R2-{w:g}" for w in weights), "R3"]
+    relative = [f"R2{t}-{w:g}" for t in ("r", "rx") for w in RELATIVE_WEIGHTS]
+    return ["R0", "R1", "R1x", *(f"R2-{w:g}" for w in weights), *relative, "R3"]
 
 
 def end_states(
@@ -83,6 +90,11 @@ def end_states(
     }
     for w in weights:
         makers[f"R2-{w:g}-opt"] = lambda w=w: local_optima(problem, copy_weight=w)[0]
+    for name, targets in (("r", problem.graph.poses), ("rx", exchanged)):
+        for w in RELATIVE_WEIGHTS:
+            makers[f"R2{name}-{w:g}-opt"] = lambda w=w, t=targets: local_optima(
+                problem, copy_weight=w, copy_targets=t, copy_relative=True
+            )[0]
     states = {}
     for row, make in makers.items():
         started = time.perf_counter()
@@ -93,8 +105,9 @@ def end_states(
 def scores(
     problem: DistributedProblem, local: list, weights: tuple[float, ...], exchanged: np.ndarray
 ) -> dict:
-    """One end state ``local`` under R0, R1, R1x, R2-w (:func:`designs`); R3 is the caller's."""
+    """One end state ``local`` under the designs of :func:`designs` but R3 (the caller's)."""
     held, held_x, penalised = 0.0, 0.0, dict.fromkeys(weights, 0.0)
+    shape = {f"R2{t}-{w:g}": 0.0 for t in ("r", "rx") for w in RELATIVE_WEIGHTS}
     for graph_r, poses in zip(problem.local_graphs, local, strict=True):
         targets = problem.graph.poses[graph_r.separator_ids]
         copies = poses.copy()
@@ -105,11 +118,16 @@ def scores(
         for w in weights:
             priors = copy_priors(graph_r, targets, w)
             penalised[w] += objective.objective(priors, np.vstack([poses, targets]))
+        for name, source in (("r", problem.graph.poses), ("rx", exchanged)):
+            for w in RELATIVE_WEIGHTS:
+                tied = relative_priors(graph_r, source[graph_r.separator_ids], w)
+                shape[f"R2{name}-{w:g}"] += objective.objective(tied, poses)
     return {
         "R0": robots_local_f(problem, local),
         "R1": held,
         "R1x": held_x,
         **{f"R2-{w:g}": value for w, value in penalised.items()},
+        **shape,
     }
 
 
@@ -129,6 +147,7 @@ def problem_rows(args: argparse.Namespace, k: int) -> list[dict]:
                 "row": row,
                 **scores(problem, local, args.weights, exchanged),
                 "R3": objective.objective(graph, reconciled.poses),
+                "F_aligned": reconciled.F_aligned,
                 "ATE": ate(reconciled.poses, graph.ground_truth),
                 "row_s": seconds,
                 "consensus_s": time.perf_counter() - started,
@@ -204,7 +223,7 @@ def summarise(frame: pd.DataFrame, weights: tuple[float, ...]) -> dict:
                 "rho_episode_rows_ci": bootstrap_ci(rho_base, np.mean),
             }
         )
-    gain = paired_table(frame, [("imitation", "learned-order")], names)
+    gain = paired_table(frame, [("imitation", "learned-order")], [*names[:-1], "F_aligned", "R3"])
     return {"rows": per_row, "paired": against, "spearman": correlation, "imitation": gain}
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from popbench import objective
+from popbench import objective, se2
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.reconcile import CONSENSUS_MODES, reconcile
@@ -115,3 +115,24 @@ def test_copy_targets_replace_the_start_as_the_owners_estimates(problem):
     held, _ = local_lm.local_optima(problem, copy_weight=np.inf, copy_targets=targets)
     for local, poses in zip(problem.local_graphs, held, strict=True):
         assert np.array_equal(poses[local.owned_count :], targets[local.separator_ids])
+
+
+def test_relative_priors_ignore_the_owners_frames(problem):
+    local = problem.local_graphs[1]
+    targets = problem.graph.ground_truth[local.separator_ids]
+    shifted = se2.compose(np.array([3.0, -2.0, 0.7]), targets)  # one rigid frame move
+    poses = local.graph.poses.copy()
+    poses[local.owned_count :] = targets
+    tied = local_lm.relative_priors(local, targets, 5.0)
+    assert tied.num_edges > local.graph.num_edges
+    f_local = objective.objective(local.graph, poses)
+    assert objective.objective(tied, poses) == pytest.approx(f_local, abs=1e-9)
+    poses[local.owned_count :] = shifted
+    moved = local_lm.relative_priors(local, targets, 5.0)
+    assert objective.objective(moved, poses) == pytest.approx(
+        objective.objective(local.graph, poses), abs=1e-9
+    )
+    optima, _ = local_lm.local_optima(problem, copy_weight=1.0, copy_relative=True)
+    assert np.array_equal(optima[1][0], local.graph.poses[0])  # the first pose is the gauge
+    with pytest.raises(ValueRangeError, match="copy_weight"):
+        local_lm.local_optima(problem, copy_weight=np.inf, copy_relative=True)

@@ -15,6 +15,7 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
+from popbench import se2
 from popbench.distributed import DistributedProblem, LocalGraph
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
@@ -34,6 +35,7 @@ def local_optima(
     cost: str = "F",
     copy_weight: float | None = None,
     copy_targets: np.ndarray | None = None,
+    copy_relative: bool = False,
 ) -> tuple[list[np.ndarray], np.ndarray]:
     """Every robot's local graph solved by LM (its first owned pose fixed, unless
     ``copy_weight`` ties the separator copies to their owners' estimates).
@@ -56,12 +58,16 @@ def local_optima(
             Not combined with ``excluded``.
         copy_targets: ``(N, 3)`` the owners' estimates of every global pose that
             ``copy_weight`` ties the copies to (default ``problem.graph.poses``).
+        copy_relative: tie only the copies' relative poses per owner (:func:`relative_priors`,
+            finite ``copy_weight``; the owners' frames stay free, the first pose the gauge).
 
     Returns:
         ``(local_poses, seconds)``: one ``(n_r, 3)`` optimum per robot (rows in
         ``local_vertices(r)`` order) and ``(n,)`` each robot's LM wall time [s].
     """
-    if copy_weight is not None and (excluded is not None or not copy_weight > 0):
+    if copy_weight is not None and (
+        excluded is not None or not copy_weight > 0 or (copy_relative and np.isinf(copy_weight))
+    ):
         raise ValueRangeError("copy_weight", copy_weight, "w > 0 or inf, without excluded")
     starts = problem.split() if starts is None else starts
     local_poses, seconds = [], np.zeros(problem.num_robots)
@@ -72,7 +78,13 @@ def local_optima(
             targets = (problem.graph.poses if copy_targets is None else copy_targets)[
                 local.separator_ids
             ]
-            local_poses.append(_solve_tied(local, start, targets, copy_weight, iterations, cost))
+            if copy_relative:
+                tied = relative_priors(local, targets, copy_weight)
+                local_poses.append(solve_graph(tied, start, iterations, cost=cost).poses)
+            else:
+                local_poses.append(
+                    _solve_tied(local, start, targets, copy_weight, iterations, cost)
+                )
         elif excluded is None:
             local_poses.append(solve_graph(graph, start, iterations, cost=cost).poses)
         else:
@@ -111,6 +123,36 @@ def copy_priors(local: LocalGraph, targets: np.ndarray, weight: float) -> PoseGr
         ground_truth=None,
         robots=None,
         fixed=anchors,
+    )
+
+
+def relative_priors(local: LocalGraph, targets: np.ndarray, weight: float) -> PoseGraph:
+    """``local.graph`` with the copies of each owner chained (in global id order) by edges
+    measuring their relative pose in ``targets``, each with ``weight`` times the mean of its two
+    copies' summed local information: a penalty on the copies' shape, free of the owners'
+    frames (a copy alone of its owner is free).
+
+    Args:
+        local: one robot's local graph (``c`` copies).
+        targets: ``(c, 3)`` the owners' estimates of the copies.
+        weight: the priors' weight w > 0 (dimensionless).
+    """
+    graph, owned = local.graph, local.owned_count
+    information = np.zeros((local.num_vertices, 3, 3))
+    np.add.at(information, graph.tails, graph.information)
+    np.add.at(information, graph.heads, graph.information)
+    owners = graph.robots[owned:]
+    order = np.lexsort((local.separator_ids, owners))
+    same = owners[order][1:] == owners[order][:-1]
+    a, b = order[:-1][same], order[1:][same]  # copy indices (0-based among the copies)
+    return graph.replace(
+        tails=np.concatenate([graph.tails, owned + a]),
+        heads=np.concatenate([graph.heads, owned + b]),
+        measurements=np.vstack([graph.measurements, se2.between(targets[a], targets[b])]),
+        information=np.concatenate(
+            [graph.information, weight * (information[owned + a] + information[owned + b]) / 2]
+        ),
+        kinds=np.concatenate([graph.kinds, np.full(a.size, EdgeKind.INTER_LOOP, np.int8)]),
     )
 
 
