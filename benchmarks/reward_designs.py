@@ -139,7 +139,7 @@ def problem_rows(args: argparse.Namespace, k: int) -> list[dict]:
     records = []
     for row, (local, seconds) in end_states(problem, args.weights, exchanged).items():
         started = time.perf_counter()
-        reconciled = reconcile(problem, local, args.consensus)
+        reconciled = reconcile(problem, local, args.consensus, args.consensus_iterations)
         graph = problem.graph
         records.append(
             {
@@ -151,6 +151,8 @@ def problem_rows(args: argparse.Namespace, k: int) -> list[dict]:
                 "ATE": ate(reconciled.poses, graph.ground_truth),
                 "row_s": seconds,
                 "consensus_s": time.perf_counter() - started,
+                "consensus_iterations": reconciled.iterations,
+                "consensus_converged": reconciled.converged,
             }
         )
     return records
@@ -282,6 +284,7 @@ def main() -> None:
     parser.add_argument("--robots", type=int, default=7)
     parser.add_argument("--noise", default="V2")
     parser.add_argument("--consensus", default=DEFAULT_CONSENSUS)
+    parser.add_argument("--consensus-iterations", type=int, default=200, help="ADMM at most")
     parser.add_argument(
         "--weights", type=lambda s: tuple(map(float, s.split(","))), default=WEIGHTS
     )
