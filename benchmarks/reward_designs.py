@@ -20,13 +20,13 @@ agents.heldout) and the optima local-lm (R0), R1-opt, R1x-opt, R2-w-opt, R2r-w-o
 (local_lm.local_optima with ``copy_weight``). Each row is scored under every design. Per
 problem ``rows.csv``; ``summary.md`` / ``summary.json``: F after the consensus per row with
 paired bootstrap CIs against local-lm and learned-order, the within-problem Spearman
-correlation of each design with R3 across the rows (mean over problems), and imitation −
-learned-order under each design and after the consensus's frame alignment alone
-(``F_aligned``: eq. 1 of the assembled copies once every robot's map is moved rigidly, before
-the ADMM). Problems already in ``rows.csv`` are kept (a run resumes).
+correlation with R3 across the rows (mean over problems) of each design and of ``F_aligned``
+(eq. 1 of the assembled copies once the consensus has moved every robot's map rigidly, before
+its ADMM), and imitation − learned-order under each of them. Problems already in ``rows.csv``
+are kept (a run resumes).
 
     PYTHONPATH=. .venv/bin/python benchmarks/reward_designs.py --poses-per-robot 250 \\
-        --problems 20 --out results/reward-designs/p250
+        --problems 30 --out results/reward-designs/p250
 """
 
 from __future__ import annotations
@@ -205,7 +205,7 @@ def summarise(frame: pd.DataFrame, weights: tuple[float, ...]) -> dict:
     against = paired_table(frame, pairs, ["R3"])
     names = designs(weights)
     correlation = []
-    for design in names[:-1]:
+    for design in [*names[:-1], "F_aligned"]:
         rho = np.array(
             [
                 spearmanr(group[design], group["R3"]).statistic
