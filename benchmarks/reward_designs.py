@@ -158,6 +158,16 @@ def problem_rows(args: argparse.Namespace, k: int) -> list[dict]:
     return records
 
 
+def centre(values: np.ndarray, prefix: str = "") -> dict[str, object]:
+    """Median and mean of ``values (K,)`` with their bootstrap 95 % CIs, keys prefixed."""
+    return {
+        f"{prefix}median": float(np.median(values)),
+        f"{prefix}median_ci": bootstrap_ci(values, np.median),
+        f"{prefix}mean": float(values.mean()),
+        f"{prefix}mean_ci": bootstrap_ci(values, np.mean),
+    }
+
+
 def paired_table(frame: pd.DataFrame, pairs: list[tuple[str, str]], metrics: list[str]) -> list:
     """A − B per problem for each pair and metric: median / mean with bootstrap 95 % CIs and
     the share of problems with A < B."""
@@ -172,10 +182,7 @@ def paired_table(frame: pd.DataFrame, pairs: list[tuple[str, str]], metrics: lis
                     "B": b,
                     "metric": metric,
                     "problems": int(d.size),
-                    "median": float(np.median(d)),
-                    "median_ci": bootstrap_ci(d, np.median),
-                    "mean": float(d.mean()),
-                    "mean_ci": bootstrap_ci(d, np.mean),
+                    **centre(d),
                     "A_lower": float((d < 0).mean()),
                 }
             )
@@ -193,10 +200,7 @@ def summarise(frame: pd.DataFrame, weights: tuple[float, ...]) -> dict:
             {
                 "row": row,
                 "problems": int(f.size),
-                "F_median": float(np.median(f)),
-                "F_median_ci": bootstrap_ci(f, np.median),
-                "F_mean": float(f.mean()),
-                "F_mean_ci": bootstrap_ci(f, np.mean),
+                **centre(f, "F_"),
                 "row_s_mean": float(frame.loc[frame["row"] == row, "row_s"].mean()),
             }
         )
