@@ -27,8 +27,9 @@ class Task:
     Attributes:
         name: the registry key.
         summary: one line: what the task asks of an algorithm.
-        correction, observation, action_scale, base: the environment's modes
-            (:class:`envs.core.PGOCore`).
+        correction, observation, action_scale, base, step_rule: the environment's modes
+            (:class:`envs.core.PGOCore`; every task trains under the clipped step rule, the one
+            the committed actors were trained in).
         reward: ``"localisation"`` (ground truth), ``"F"`` (the local objective), or None:
             ``"localisation"`` where the problems have ground truth, else ``"F"``.
         terminal_bonus: the terminal log-ratio bonus on the episode's last step.
@@ -46,6 +47,7 @@ class Task:
     observation: str = "paper"
     action_scale: str = "metric"
     base: str = "none"
+    step_rule: str = "clip"
     reward: str | None = None
     terminal_bonus: bool = True
     robots: int = 7
@@ -62,6 +64,7 @@ class Task:
             "observation": self.observation,
             "action_scale": self.action_scale,
             "base": self.base,
+            "step_rule": self.step_rule,
         }
 
     def env_options(self) -> dict[str, Any]:
