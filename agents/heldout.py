@@ -257,7 +257,8 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
         }
     learned = spec["row"] in LEARNED_ROWS
     if learned:
-        run = learned_episode(spec["row"], problem, spec["checkpoint"], spec.get("step_rule"))
+        rule = spec.get("step_rule", "clip")
+        run = learned_episode(spec["row"], problem, spec["checkpoint"], rule)
         local = run.local_poses
     else:
         local = local_estimates(spec["row"], problem, spec)

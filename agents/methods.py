@@ -43,6 +43,7 @@ from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
 from agents.outlier_gate import GATE_THRESHOLD, OutlierGate, holder_minimum, reconciled_gate
 from popbench import objective
+from popbench.choices import DEFAULT_STEP_RULE
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result, method_record
 from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
@@ -51,9 +52,6 @@ if TYPE_CHECKING:
     from envs.core import PGOCore
 
 DEFAULT_CHECKPOINT = method_record("prop-v1").checkpoint_path()  # the record's checkpoint
-# prop-v1's step rule (envs.core.PGOCore): chosen on 30 held-out SLAM-shaped maps (docs/training.md,
-# "The step rule at inference"), where it lowered F after the consensus against the clipped rule
-DEFAULT_STEP_RULE = "line-search"
 CHECKPOINT_DIR = DEFAULT_CHECKPOINT.parent
 PROP_V2_LM_ITERATIONS = 75
 

@@ -68,6 +68,7 @@ from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attribute
 from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
 from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
 from envs.tree import pack_trees, place_separators
+from popbench.choices import STEP_RULES
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs
@@ -79,7 +80,6 @@ CORRECTIONS = ("pose", "subtree")
 OBSERVATIONS = ("paper", "invariant")
 ACTION_SCALES = ("metric", "whitened")
 BASES = ("none", "gauss-newton")
-STEP_RULES = ("clip", "line-search")
 WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened action
 
 

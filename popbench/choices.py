@@ -8,7 +8,10 @@ once: the modules that implement a choice import its list from here (no NumPy, s
 * :data:`ROBUST_KERNELS` — the robust kernels of MM-PGO (:mod:`baselines.robust`), besides
   ``"none"``;
 * :data:`DEFAULT_GROUP_SIZE` — the false loop closures per group of the vertigo-grouped outlier
-  model (:mod:`popbench.outliers`).
+  model (:mod:`popbench.outliers`);
+* :data:`STEP_RULES` — how the environment executes a correction (:class:`envs.core.PGOCore`), and
+  :data:`DEFAULT_STEP_RULE` — the one prop-v1 and ``popbench run heldout`` use, chosen on 30
+  held-out SLAM-shaped maps (docs/training.md, "The step rule at inference").
 """
 
 from __future__ import annotations
@@ -24,3 +27,5 @@ NOISES = (*NOISE_LEVELS, SLAM_LEVEL)
 PARTITIONS = ("metis", "contiguous")
 ROBUST_KERNELS = ("huber", "gm", "welsch")
 DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group
+STEP_RULES = ("clip", "line-search")  # "clip": the paper's bounded correction, the training rule
+DEFAULT_STEP_RULE = "line-search"

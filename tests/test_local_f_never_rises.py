@@ -13,8 +13,9 @@ import pytest
 import torch
 from conftest import require_dataset
 
-from agents.methods import DEFAULT_CHECKPOINT, DEFAULT_STEP_RULE, cached_actor, run_episode
+from agents.methods import DEFAULT_CHECKPOINT, cached_actor, run_episode
 from popbench import objective
+from popbench.choices import DEFAULT_STEP_RULE
 from popbench.harness.defaults import TABLE1_DATASETS
 from popbench.harness.problems import distributed_problem
 

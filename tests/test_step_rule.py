@@ -4,6 +4,8 @@ candidates; the rule travels with the task (docs/environment.md, "The step rule"
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -18,7 +20,7 @@ from popbench.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 20}
 TASKS = {
-    "subtree, base step": TaskConfig(**{**TRAJECTORY_TASK.core_options()}),
+    "subtree, base step": TRAJECTORY_TASK,
     "subtree, no base": TaskConfig("subtree", "invariant", "whitened", "none"),
     "pose, metric": TaskConfig("pose", "paper", "metric", "none"),
 }
@@ -28,7 +30,7 @@ def random_episode(task: TaskConfig, rule: str, seed: int) -> np.ndarray:
     """``(T + 1, n)`` every agent's local F along one episode of uniformly random edges and
     corrections drawn over twice the action bound (the rule, not the policy, keeps them safe)."""
     problem = make_problem(seed=seed, **SMALL)
-    core = PGOCore.for_problems([problem], TaskConfig(**{**task.core_options(), "step_rule": rule}))
+    core = PGOCore.for_problems([problem], dataclasses.replace(task, step_rule=rule))
     rng = np.random.default_rng(seed)
     bound = 2 * core.action_bound.numpy()
     losses = [core.state.loss[0].numpy().copy()]
@@ -56,7 +58,7 @@ def test_line_search_never_raises_a_local_f_where_clipping_does(name: str) -> No
 
 def test_the_core_keeps_its_loss_equal_to_the_local_objective() -> None:
     problem = make_problem(seed=7, **SMALL)
-    task = TaskConfig(**{**TRAJECTORY_TASK.core_options(), "step_rule": "line-search"})
+    task = dataclasses.replace(TRAJECTORY_TASK, step_rule="line-search")
     core = PGOCore.for_problems([problem], task)
     expert = Expert(core)
     for _ in range(core.horizon):
@@ -69,7 +71,7 @@ def test_the_core_keeps_its_loss_equal_to_the_local_objective() -> None:
 
 def test_the_chosen_scale_is_the_best_candidate() -> None:
     problem = make_problem(seed=2, **SMALL)
-    task = TaskConfig(**{**TRAJECTORY_TASK.core_options(), "base": "none"})
+    task = dataclasses.replace(TRAJECTORY_TASK, base="none")
     rng = np.random.default_rng(0)
     for _ in range(5):
         edge = torch.as_tensor(rng.integers(0, 10, 3)).view(1, 3)
@@ -81,7 +83,7 @@ def test_the_chosen_scale_is_the_best_candidate() -> None:
             core.step(edge, scale * delta)
             outcomes.append(core.state.loss[0].numpy().copy())
         searched = PGOCore.for_problems(
-            [problem], TaskConfig(**{**task.core_options(), "step_rule": "line-search"})
+            [problem], dataclasses.replace(task, step_rule="line-search")
         )
         searched.step(edge, delta)
         best = np.min(outcomes, axis=0)

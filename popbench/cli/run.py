@@ -19,7 +19,14 @@ from typing import Any
 
 import typer
 
-from popbench.choices import DEFAULT_GROUP_SIZE, NOISES, PARTITIONS, ROBUST_KERNELS
+from popbench.choices import (
+    DEFAULT_GROUP_SIZE,
+    DEFAULT_STEP_RULE,
+    NOISES,
+    PARTITIONS,
+    ROBUST_KERNELS,
+    STEP_RULES,
+)
 from popbench.cli import options
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness import defaults
@@ -361,7 +368,7 @@ def heldout_command(
         "learned rows' gate_auc, gate_precision and gate_recall.",
     ),
     step_rule: str = typer.Option(
-        "line-search",
+        DEFAULT_STEP_RULE,
         help="The environment's step rule in every episode row: line-search (prop-v1's: the "
         "executed correction unclipped, scaled so that no step raises a robot's local F) | clip "
         "(clipped to its bounds, as the actors were trained; the tables before 2026-12-05); "
@@ -402,7 +409,6 @@ def heldout_command(
     problem by problem, with 95 % CIs; a --policy row against no-op, gn-sweep, imitation,
     ga-sac and local-lm), heldout.md, heldout.png/.pdf and manifest.json.
     """
-    from envs.core import STEP_RULES
     from popbench.harness.heldout import (
         ROW_ALIASES,
         ROWS,

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from popbench.choices import DEFAULT_STEP_RULE
 from popbench.harness.cache import code_fingerprint
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.runner import run_experiment
@@ -83,7 +84,7 @@ class HeldoutConfig:
             are scored as outlier classifiers (gate_auc, gate_precision, gate_recall).
         step_rule: the environment's step rule in every episode row (envs.core.PGOCore:
             ``"clip"``, the one the actors were trained in, or ``"line-search"``, prop-v1's
-            default, agents.methods.DEFAULT_STEP_RULE).
+            default, :data:`popbench.choices.DEFAULT_STEP_RULE`).
     """
 
     noise: tuple[str, ...] = ("V2",)
@@ -100,7 +101,7 @@ class HeldoutConfig:
     policy_arg: str | None = None
     policy_name: str | None = None
     policy_env: dict[str, Any] = dataclasses.field(default_factory=dict)
-    step_rule: str = "line-search"
+    step_rule: str = DEFAULT_STEP_RULE
 
 
 def canonical_rows(rows: tuple[str, ...]) -> tuple[str, ...]:
