@@ -57,10 +57,13 @@ from envs.basestep import (
     chosen_step,
 )
 from envs.correction import (
-    line_search,
+    LINE_SEARCH_SCALES,
+    monotone_choice,
     move_subtree,
+    nonmonotone_choice,
     refresh_boundary,
     refresh_edges,
+    scaled_changes,
     subtree_members,
 )
 from envs.geometry import _gather_rows, _scatter_rows, between, compose, residuals
@@ -128,7 +131,7 @@ class PGOCore:
         terminal_bonus: add the terminal ``log`` ratio on the episode's last step (the
             paper's reward); without it the per-step rewards alone, which already telescope to
             the episode's reduction, and which a critic can read off the state.
-        step_rule: ``"clip"`` or ``"line-search"`` (below).
+        step_rule: ``"clip"``, ``"line-search"`` or ``"nonmonotone"`` (below).
 
     The modes:
 
@@ -171,9 +174,12 @@ class PGOCore:
         clipped (the base step is the full Gauss–Newton step; a trained actor's ``Δ`` keeps the
         bound of its own output); the core executes ``α (Δ_GN + Δ)`` with the scale
         ``α ∈`` :data:`envs.correction.LINE_SEARCH_SCALES` (0 included) that lowers the agent's
-        local F the most (:func:`envs.correction.line_search`, exact over the edges the move
-        changes), so no step raises an agent's local F. The observed base step stays the clipped
-        one in both rules (what the committed actors were trained on).
+        local F the most (:func:`envs.correction.scaled_changes`, exact over the edges the move
+        changes), so no step raises an agent's local F. ``"nonmonotone"``: as the line search,
+        but the largest α whose local F stays at or below the largest of the agent's last
+        :data:`envs.correction.NONMONOTONE_WINDOW` values (Grippo et al. 1986): a step may
+        raise F for a while; no episode ends above its start. The observed base step stays the
+        clipped one in every rule (what the committed actors were trained on).
     """
 
     def __init__(
@@ -237,7 +243,7 @@ class PGOCore:
         unbounded = torch.full((3,), torch.inf, dtype=dtype, device=self.device)
         self.execute_modes = (
             StepModes(correction, unbounded, unbounded, whitened)
-            if step_rule == "line-search"
+            if step_rule != "clip"
             else self.step_modes
         )
         self.readout_modes = ReadoutModes(observation == "invariant", whitened)
@@ -379,6 +385,8 @@ class PGOCore:
         t.loss[index] = costs.sum(-1)
         t.remaining[index] = t.num_edges[index]
         t.initial_loss[index] = t.loss[index]
+        local_f = edge_costs(t.residuals[index], t.kappa[index], t.tau[index]).sum(-1)
+        t.recent_f[index] = local_f.unsqueeze(-1).expand(-1, -1, t.recent_f.shape[-1])
         self._base_model = None
 
     # -- dynamics --------------------------------------------------------------------------------
@@ -423,9 +431,8 @@ class PGOCore:
         if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
             delta = delta + chosen_step(t, self.execute_modes, flat_edge, crossing).view(b, n, 3)
         executed = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
-        if self.step_rule == "line-search":
-            scale = line_search(t, self.correction, poses, flat_edge, executed, crossing)
-            executed = executed * scale
+        if self.step_rule != "clip":
+            executed = executed * self._searched_scale(poses, flat_edge, executed, crossing)
         previous = t.loss.clone()
         if self.correction == "subtree":
             move_subtree(t, self.correction, poses, flat_edge, executed, inside)
@@ -454,6 +461,24 @@ class PGOCore:
         bonus = torch.log((t.initial_loss + EPSILON) / (t.loss + EPSILON))
         reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
         return StepResult(reward, done, agent_done, repaired)
+
+    def _searched_scale(
+        self, poses: torch.Tensor, edge: torch.Tensor, executed: torch.Tensor, crossing: Boundary
+    ) -> torch.Tensor:
+        """``(G, 1, 1)``: the scale of each agent's metric correction ``executed (G, 1, 3)`` under
+        the ``line-search`` or ``nonmonotone`` step rule; the latter's window of local F values
+        moves on by the chosen step."""
+        t = self.state
+        change = scaled_changes(t, self.correction, poses, edge, executed, crossing)
+        if self.step_rule == "line-search":
+            choice = monotone_choice(change)
+        else:
+            recent = t.recent_f.view(edge.shape[0], -1)
+            choice = nonmonotone_choice(change, recent)
+            now = recent[:, -1] + change.gather(1, choice.unsqueeze(-1)).squeeze(-1)
+            t.recent_f = torch.cat([recent[:, 1:], now.unsqueeze(-1)], -1).view_as(t.recent_f)
+        scales = torch.tensor(LINE_SEARCH_SCALES, dtype=executed.dtype, device=executed.device)
+        return scales[choice].view(-1, 1, 1)
 
     def base_model(self) -> BaseModel:
         """The Gauss–Newton quadratic model of every edge slot at the current state

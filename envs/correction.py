@@ -16,8 +16,12 @@ import torch
 from envs.geometry import _gather_rows, _offset, _scatter_rows, between, compose, inverse, residuals
 from popbench.objective import edge_costs
 
-#: the step scales the ``line-search`` step rule tries (:func:`line_search`; 0: no move)
+#: the step scales the ``line-search`` and ``nonmonotone`` step rules try, in decreasing order
+#: (:func:`scaled_changes`; 0: no move)
 LINE_SEARCH_SCALES = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.0)
+#: the local F values the ``nonmonotone`` rule's reference is the largest of (the current one and
+#: the agent's ``M − 1`` before it): Grippo, Lampariello & Lucidi's (1986) usual M = 10
+NONMONOTONE_WINDOW = 10
 
 if TYPE_CHECKING:
     from envs.basestep import Boundary
@@ -74,7 +78,7 @@ def move_subtree(
     flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
 
 
-def line_search(
+def scaled_changes(
     t: CoreState,
     correction: str,
     poses: torch.Tensor,
@@ -82,12 +86,12 @@ def line_search(
     delta: torch.Tensor,
     crossing: Boundary,
 ) -> torch.Tensor:
-    """``(G, 1, 1)``: the scale α ∈ :data:`LINE_SEARCH_SCALES` of the metric correction ``delta
-    (G, 1, 3)`` on the edge slots ``edge (G, 1)`` that lowers each agent's local F the most.
+    """``(G, K)``: the change of each agent's local F (paper eq. 1, the measurements as targets)
+    if its metric correction ``delta (G, 1, 3)`` on the edge slots ``edge (G, 1)`` were scaled by
+    each α of :data:`LINE_SEARCH_SCALES` (``K`` of them; the last, α = 0, changes nothing).
 
     A rigid move changes only the residuals of the edges that cross the moved set's boundary
-    (``crossing``), so the change of F (paper eq. 1, the measurements as targets) is exact over
-    them; α = 0 (no move) is a candidate, hence no scaled step raises F."""
+    (``crossing``), so the change is exact over them."""
     scales = torch.tensor(LINE_SEARCH_SCALES, dtype=delta.dtype, device=delta.device)
     motion = rigid_motion(t, correction, poses, edge, delta * scales.view(1, -1, 1))
     flat = poses.reshape(-1, 3)
@@ -106,7 +110,29 @@ def line_search(
     )
     change = torch.zeros(edge.shape[0], scales.numel(), dtype=delta.dtype, device=delta.device)
     change.index_add_(0, crossing.agent, after - before.unsqueeze(1))
-    return scales[change.argmin(-1)].view(-1, 1, 1)
+    return change
+
+
+def monotone_choice(change: torch.Tensor) -> torch.Tensor:
+    """``(G,)`` int64: the index of the scale that lowers each agent's local F the most, of
+    the changes ``change (G, K)`` (:func:`scaled_changes`); α = 0 is a candidate, so the chosen
+    step never raises F (the ``line-search`` step rule)."""
+    return change.argmin(-1)
+
+
+def nonmonotone_choice(change: torch.Tensor, recent: torch.Tensor) -> torch.Tensor:
+    """``(G,)`` int64: the index of the largest scale whose local F stays at or below the
+    largest of the agent's last :data:`NONMONOTONE_WINDOW` values ``recent (G, M)`` (the current
+    one last), of the changes ``change (G, K)`` (the ``nonmonotone`` step rule).
+
+    The reference of Grippo, Lampariello & Lucidi (1986), without their sufficient-decrease term
+    (the scales are a fixed grid): a step may raise F for a while, but the window's largest value
+    never rises, so no agent ends an episode above its start. α = 0 (the last) is always
+    acceptable."""
+    reference = recent.max(-1, keepdim=True).values
+    acceptable = recent[:, -1:] + change <= reference
+    acceptable[:, -1] = True  # α = 0, whatever the round-off of its zero change
+    return acceptable.to(torch.int8).argmax(-1)  # the first: scales are in decreasing order
 
 
 def refresh_boundary(t: CoreState, crossing: Boundary, reward: str) -> torch.Tensor:

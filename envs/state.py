@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from envs.basestep import matrix_parts
+from envs.correction import NONMONOTONE_WINDOW
 
 
 def _entry(kind: str) -> dataclasses.Field:
@@ -53,7 +54,9 @@ class CoreState:
         residuals ``(E+1, 3)`` against the measurements; costs ``(E+1,)`` each edge's term of
         ``L`` (against the targets); processed ``(E+1,)`` bool (the no-op slot always);
         loss, initial_loss ``()`` ``L_i`` now and at the episode's start; remaining ``()``
-        int64 edges left to process.
+        int64 edges left to process; recent_f ``(M,)`` the agent's local F (the measurements as
+        targets) after its last ``M`` steps, the current one last (filled with the start's value;
+        kept under the ``nonmonotone`` step rule only, :func:`envs.correction.nonmonotone_choice`).
     """
 
     vertex_ids: Tensor = _entry("packed")
@@ -90,6 +93,7 @@ class CoreState:
     loss: Tensor = _entry("dynamic")
     initial_loss: Tensor = _entry("dynamic")
     remaining: Tensor = _entry("dynamic")
+    recent_f: Tensor = _entry("dynamic")
 
     def replace_elements(self, index: Tensor, packed: dict[str, Tensor]) -> None:
         """Replace the packed entries of the batch elements ``index`` out of place (tensors
@@ -128,6 +132,7 @@ def empty_dynamics(
         "loss": torch.empty((batch, agents), dtype=dtype, device=device),
         "initial_loss": torch.empty((batch, agents), dtype=dtype, device=device),
         "remaining": torch.empty((batch, agents), dtype=torch.int64, device=device),
+        "recent_f": torch.empty((batch, agents, NONMONOTONE_WINDOW), dtype=dtype, device=device),
     }
 
 

@@ -27,5 +27,6 @@ NOISES = (*NOISE_LEVELS, SLAM_LEVEL)
 PARTITIONS = ("metis", "contiguous")
 ROBUST_KERNELS = ("huber", "gm", "welsch")
 DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group
-STEP_RULES = ("clip", "line-search")  # "clip": the paper's bounded correction, the training rule
+# "clip": the paper's bounded correction, the training rule; docs/environment.md, "The step rule"
+STEP_RULES = ("clip", "line-search", "nonmonotone")
 DEFAULT_STEP_RULE = "line-search"

@@ -1,6 +1,7 @@
 """The environment's step rule (envs.core.PGOCore ``step_rule``): the line search never lets a
 step raise an agent's local F, where the clipped rule can; the scale it picks is the best of its
-candidates; the rule travels with the task (docs/environment.md, "The step rule")."""
+candidates; the non-monotone rule lets F rise within its window but never above the window's
+largest value; the rule travels with the task (docs/environment.md, "The step rule")."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import torch
 
 from agents.config import TRAJECTORY_TASK, TaskConfig
 from envs.core import PGOCore
-from envs.correction import LINE_SEARCH_SCALES
+from envs.correction import LINE_SEARCH_SCALES, NONMONOTONE_WINDOW, nonmonotone_choice
 from envs.expert import Expert
 from popbench import objective
 from popbench.errors import ValueRangeError
@@ -56,13 +57,40 @@ def test_line_search_never_raises_a_local_f_where_clipping_does(name: str) -> No
     assert raised_by_clip > 0  # the random policy does raise F without the search
 
 
+@pytest.mark.parametrize("name", list(TASKS))
+def test_the_nonmonotone_rule_never_raises_its_reference(name: str) -> None:
+    rose_within_the_window = 0
+    for seed in range(3):
+        losses = random_episode(TASKS[name], "nonmonotone", seed)
+        padded = np.concatenate([np.repeat(losses[:1], NONMONOTONE_WINDOW - 1, 0), losses])
+        windows = np.lib.stride_tricks.sliding_window_view(padded, NONMONOTONE_WINDOW, axis=0)
+        reference = windows.max(-1)  # (T + 1, n): the largest of the last M values
+        assert (losses[1:] <= reference[:-1] * (1 + 1e-9) + 1e-9).all()
+        assert (losses[-1] <= losses[0] * (1 + 1e-9) + 1e-9).all()
+        assert losses[-1].sum() < losses[0].sum()
+        rose_within_the_window += int((np.diff(losses, axis=0) > 1e-9).any())
+    assert rose_within_the_window > 0  # unlike the line search, a step may raise F
+
+
+def test_the_nonmonotone_choice_takes_the_largest_acceptable_scale() -> None:
+    recent = torch.tensor([[5.0, 3.0, 2.0], [2.0, 2.0, 2.0]])  # the current value last
+    change = torch.tensor([[4.0, 2.5, -0.5, 0.0], [1.0, -0.1, -0.3, 0.0]])
+    # agent 0: 2 + 4 > 5, 2 + 2.5 <= 5 → index 1; agent 1: 2 + 1 > 2, 2 - 0.1 <= 2 → index 1
+    assert nonmonotone_choice(change, recent).tolist() == [1, 1]
+    assert nonmonotone_choice(
+        torch.full((1, 4), 9.0).index_fill(1, torch.tensor([3]), 0.0), recent[:1]
+    ).tolist() == [3]  # only α = 0 is left
+
+
 def test_the_core_keeps_its_loss_equal_to_the_local_objective() -> None:
     problem = make_problem(seed=7, **SMALL)
-    task = dataclasses.replace(TRAJECTORY_TASK, step_rule="line-search")
+    task = dataclasses.replace(TRAJECTORY_TASK, step_rule="nonmonotone")
     core = PGOCore.for_problems([problem], task)
     expert = Expert(core)
     for _ in range(core.horizon):
         core.step(*expert.act())
+        recent = core.state.recent_f[0, :, -1].numpy()  # the rule's own running local F
+        np.testing.assert_allclose(recent, core.state.loss[0].numpy(), rtol=1e-9, atol=1e-9)
     copies = core.local_poses(0)
     for agent, (local, poses) in enumerate(zip(problem.local_graphs, copies, strict=True)):
         exact = objective.objective(local.graph, poses)
