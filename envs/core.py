@@ -131,7 +131,8 @@ class PGOCore:
         terminal_bonus: add the terminal ``log`` ratio on the episode's last step (the
             paper's reward); without it the per-step rewards alone, which already telescope to
             the episode's reduction, and which a critic can read off the state.
-        step_rule: ``"clip"``, ``"line-search"`` or ``"nonmonotone"`` (below).
+        step_rule: ``"clip"``, ``"line-search"``, ``"nonmonotone"`` or ``"search-with-clip"``
+            (below).
 
     The modes:
 
@@ -178,8 +179,10 @@ class PGOCore:
         changes), so no step raises an agent's local F. ``"nonmonotone"``: as the line search,
         but the largest α whose local F stays at or below the largest of the agent's last
         :data:`envs.correction.NONMONOTONE_WINDOW` values (Grippo et al. 1986): a step may
-        raise F for a while; no episode ends above its start. The observed base step stays the
-        clipped one in every rule (what the committed actors were trained on).
+        raise F for a while; no episode ends above its start. ``"search-with-clip"``: the line
+        search with one more candidate, the step the ``"clip"`` rule would execute, so each step
+        lowers F at least as much as either rule's. The observed base step stays the clipped one
+        in every rule (what the committed actors were trained on).
     """
 
     def __init__(
@@ -428,11 +431,16 @@ class PGOCore:
         delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
         inside = subtree_members(t, self.correction, flat_edge)
         crossing = boundary(t, inside)  # the same edges before and after the move
-        if self.base == "gauss-newton":  # a residual action on one Gauss–Newton step
-            delta = delta + chosen_step(t, self.execute_modes, flat_edge, crossing).view(b, n, 3)
-        executed = self.metric_delta(flat_edge, delta.reshape(g, 1, 3))
+        action = delta.reshape(g, 1, 3)
+        executed = self.metric_delta(flat_edge, action + self._base_step(flat_edge, crossing))
         if self.step_rule != "clip":
-            executed = executed * self._searched_scale(poses, flat_edge, executed, crossing)
+            scales = torch.tensor(LINE_SEARCH_SCALES, dtype=self.dtype, device=self.device)
+            candidates = executed * scales.view(1, -1, 1)  # (G, K, 3), α = 0 last
+            if self.step_rule == "search-with-clip":  # and the clip rule's own step
+                clipped = action + self._base_step(flat_edge, crossing, self.step_modes)
+                clipped = self.metric_delta(flat_edge, clipped, clip=True)
+                candidates = torch.cat([candidates[:, :-1], clipped, candidates[:, -1:]], 1)
+            executed = self._searched_step(poses, flat_edge, candidates, crossing)
         previous = t.loss.clone()
         if self.correction == "subtree":
             move_subtree(t, self.correction, poses, flat_edge, executed, inside)
@@ -462,23 +470,32 @@ class PGOCore:
         reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
         return StepResult(reward, done, agent_done, repaired)
 
-    def _searched_scale(
-        self, poses: torch.Tensor, edge: torch.Tensor, executed: torch.Tensor, crossing: Boundary
+    def _base_step(
+        self, edge: torch.Tensor, crossing: Boundary, modes: StepModes | None = None
     ) -> torch.Tensor:
-        """``(G, 1, 1)``: the scale of each agent's metric correction ``executed (G, 1, 3)`` under
-        the ``line-search`` or ``nonmonotone`` step rule; the latter's window of local F values
-        moves on by the chosen step."""
+        """``(G, 1, 3)``: the Gauss–Newton base step on the edge slots ``edge (G, 1)`` in the
+        executed ``modes`` (default: the rule's, unbounded unless it clips); 0 without a base."""
+        if self.base != "gauss-newton":
+            return torch.zeros(edge.shape[0], 1, 3, dtype=self.dtype, device=self.device)
+        step = chosen_step(self.state, modes or self.execute_modes, edge, crossing)
+        return step.view(edge.shape[0], 1, 3)
+
+    def _searched_step(
+        self, poses: torch.Tensor, edge: torch.Tensor, candidates: torch.Tensor, crossing: Boundary
+    ) -> torch.Tensor:
+        """``(G, 1, 3)``: the metric correction each agent executes of its ``candidates (G, K,
+        3)`` (α = 0 last) under a searching step rule; the ``nonmonotone`` rule's window of local
+        F values moves on by the chosen step."""
         t = self.state
-        change = scaled_changes(t, self.correction, poses, edge, executed, crossing)
-        if self.step_rule == "line-search":
-            choice = monotone_choice(change)
-        else:
+        change = scaled_changes(t, self.correction, poses, edge, candidates, crossing)
+        if self.step_rule == "nonmonotone":
             recent = t.recent_f.view(edge.shape[0], -1)
             choice = nonmonotone_choice(change, recent)
             now = recent[:, -1] + change.gather(1, choice.unsqueeze(-1)).squeeze(-1)
             t.recent_f = torch.cat([recent[:, 1:], now.unsqueeze(-1)], -1).view_as(t.recent_f)
-        scales = torch.tensor(LINE_SEARCH_SCALES, dtype=executed.dtype, device=executed.device)
-        return scales[choice].view(-1, 1, 1)
+        else:
+            choice = monotone_choice(change)
+        return candidates.gather(1, choice.view(-1, 1, 1).expand(-1, 1, 3))
 
     def base_model(self) -> BaseModel:
         """The Gauss–Newton quadratic model of every edge slot at the current state
@@ -505,12 +522,14 @@ class PGOCore:
         inside = subtree_members(self.state, self.correction, flat_edge)
         return flat_edge, boundary(self.state, inside)
 
-    def metric_delta(self, edge: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    def metric_delta(
+        self, edge: torch.Tensor, delta: torch.Tensor, clip: bool | None = None
+    ) -> torch.Tensor:
         """The metric correction ``(G, 1, 3)`` of an action ``delta (G, 1, 3)`` on the edge slots
         ``edge (G, 1)`` (``G = B·n``): clipped to the action bound, converted back from the
-        whitened units (``action_scale="whitened"``), clipped to ``Δmax``; under the line search
-        converted only."""
-        clip = self.step_rule == "clip"
+        whitened units (``action_scale="whitened"``), clipped to ``Δmax``; under a searching step
+        rule (``clip`` False; default: whether the rule is ``"clip"``) converted only."""
+        clip = self.step_rule == "clip" if clip is None else clip
         if clip:
             delta = torch.maximum(torch.minimum(delta, self.action_bound), -self.action_bound)
         if self.action_scale == "whitened":

@@ -83,17 +83,16 @@ def scaled_changes(
     correction: str,
     poses: torch.Tensor,
     edge: torch.Tensor,
-    delta: torch.Tensor,
+    candidates: torch.Tensor,
     crossing: Boundary,
 ) -> torch.Tensor:
     """``(G, K)``: the change of each agent's local F (paper eq. 1, the measurements as targets)
-    if its metric correction ``delta (G, 1, 3)`` on the edge slots ``edge (G, 1)`` were scaled by
-    each α of :data:`LINE_SEARCH_SCALES` (``K`` of them; the last, α = 0, changes nothing).
+    if it executed each of its ``K`` candidate metric corrections ``candidates (G, K, 3)`` on the
+    edge slots ``edge (G, 1)`` (e.g. one correction scaled by :data:`LINE_SEARCH_SCALES`).
 
     A rigid move changes only the residuals of the edges that cross the moved set's boundary
     (``crossing``), so the change is exact over them."""
-    scales = torch.tensor(LINE_SEARCH_SCALES, dtype=delta.dtype, device=delta.device)
-    motion = rigid_motion(t, correction, poses, edge, delta * scales.view(1, -1, 1))
+    motion = rigid_motion(t, correction, poses, edge, candidates)
     flat = poses.reshape(-1, 3)
     x_tail, x_head = flat[crossing.tail_rows], flat[crossing.head_rows]
     moved = motion[crossing.agent]  # (C, K, 3), one crossing edge per row
@@ -108,7 +107,7 @@ def scaled_changes(
         kappa.unsqueeze(1),
         tau.unsqueeze(1),
     )
-    change = torch.zeros(edge.shape[0], scales.numel(), dtype=delta.dtype, device=delta.device)
+    change = torch.zeros(candidates.shape[:2], dtype=candidates.dtype, device=candidates.device)
     change.index_add_(0, crossing.agent, after - before.unsqueeze(1))
     return change
 

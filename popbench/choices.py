@@ -28,5 +28,5 @@ PARTITIONS = ("metis", "contiguous")
 ROBUST_KERNELS = ("huber", "gm", "welsch")
 DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group
 # "clip": the paper's bounded correction, the training rule; docs/environment.md, "The step rule"
-STEP_RULES = ("clip", "line-search", "nonmonotone")
+STEP_RULES = ("clip", "line-search", "nonmonotone", "search-with-clip")
 DEFAULT_STEP_RULE = "line-search"

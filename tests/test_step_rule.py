@@ -44,11 +44,12 @@ def random_episode(task: TaskConfig, rule: str, seed: int) -> np.ndarray:
     return np.array(losses)
 
 
+@pytest.mark.parametrize("rule", ["line-search", "search-with-clip"])
 @pytest.mark.parametrize("name", list(TASKS))
-def test_line_search_never_raises_a_local_f_where_clipping_does(name: str) -> None:
+def test_line_search_never_raises_a_local_f_where_clipping_does(name: str, rule: str) -> None:
     raised_by_clip = 0
     for seed in range(3):
-        searched = random_episode(TASKS[name], "line-search", seed)
+        searched = random_episode(TASKS[name], rule, seed)
         rises = np.diff(searched, axis=0)
         assert (rises <= 1e-9 * (1.0 + searched[:-1])).all(), rises.max()
         assert searched[-1].sum() < searched[0].sum()  # and it still moves
@@ -116,6 +117,42 @@ def test_the_chosen_scale_is_the_best_candidate() -> None:
         searched.step(edge, delta)
         best = np.min(outcomes, axis=0)
         np.testing.assert_allclose(searched.state.loss[0].numpy(), best, rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", list(TASKS))
+def test_the_search_with_the_clip_beats_both_of_its_parents_at_each_step(name: str) -> None:
+    problem = make_problem(seed=3, **SMALL)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        edge = torch.as_tensor(rng.integers(0, 10, 3)).view(1, 3)
+        outcomes, draw = {}, rng.uniform(-2, 2, (1, 3, 3))  # twice the action bound
+        for rule in ("clip", "line-search", "search-with-clip"):
+            core = PGOCore.for_problems([problem], dataclasses.replace(TASKS[name], step_rule=rule))
+            core.step(edge, torch.as_tensor(draw * core.action_bound.numpy()))
+            outcomes[rule] = core.state.loss[0].numpy().copy()
+        best = np.minimum(outcomes["clip"], outcomes["line-search"])
+        assert (outcomes["search-with-clip"] <= best * (1 + 1e-9) + 1e-9).all()
+
+
+@pytest.mark.parametrize("name", list(TASKS))
+def test_the_search_with_the_clip_has_the_clip_rules_step_as_a_candidate(
+    name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    problem = make_problem(seed=4, **SMALL)
+    rng = np.random.default_rng(2)
+    edge = torch.as_tensor(rng.integers(0, 10, 3)).view(1, 3)
+    draw = rng.uniform(-2, 2, (1, 3, 3))
+    poses = {}
+    for rule in ("clip", "search-with-clip"):
+        core = PGOCore.for_problems([problem], dataclasses.replace(TASKS[name], step_rule=rule))
+        core.step(edge, torch.as_tensor(draw * core.action_bound.numpy()))
+        poses[rule] = core.state.poses.clone()
+        # forced: the candidate before α = 0, which must be the clip rule's own step
+        monkeypatch.setattr(
+            "envs.core.monotone_choice",
+            lambda change: torch.full_like(change[:, 0], change.shape[1] - 2).long(),
+        )
+    torch.testing.assert_close(poses["search-with-clip"], poses["clip"], rtol=1e-12, atol=1e-12)
 
 
 def test_an_unknown_step_rule_is_refused() -> None:
