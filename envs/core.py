@@ -58,12 +58,12 @@ from envs.basestep import (
 )
 from envs.correction import (
     LINE_SEARCH_SCALES,
+    candidate_changes,
     monotone_choice,
     move_subtree,
     nonmonotone_choice,
     refresh_boundary,
     refresh_edges,
-    scaled_changes,
     subtree_members,
 )
 from envs.geometry import _gather_rows, _scatter_rows, between, compose, residuals
@@ -175,7 +175,7 @@ class PGOCore:
         clipped (the base step is the full Gauss–Newton step; a trained actor's ``Δ`` keeps the
         bound of its own output); the core executes ``α (Δ_GN + Δ)`` with the scale
         ``α ∈`` :data:`envs.correction.LINE_SEARCH_SCALES` (0 included) that lowers the agent's
-        local F the most (:func:`envs.correction.scaled_changes`, exact over the edges the move
+        local F the most (:func:`envs.correction.candidate_changes`, exact over the edges the move
         changes), so no step raises an agent's local F. ``"nonmonotone"``: as the line search,
         but the largest α whose local F stays at or below the largest of the agent's last
         :data:`envs.correction.NONMONOTONE_WINDOW` values (Grippo et al. 1986): a step may
@@ -428,10 +428,9 @@ class PGOCore:
         poses = t.poses.view(g, -1, 3)
         tail = torch.gather(t.tails.view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
         head = torch.gather(t.heads.view(g, -1), 1, flat_edge)
-        delta = delta.to(self.device, self.dtype).reshape(b, n, 3)
+        action = delta.to(self.device, self.dtype).reshape(g, 1, 3)
         inside = subtree_members(t, self.correction, flat_edge)
         crossing = boundary(t, inside)  # the same edges before and after the move
-        action = delta.reshape(g, 1, 3)
         executed = self.metric_delta(flat_edge, action + self._base_step(flat_edge, crossing))
         if self.step_rule != "clip":
             scales = torch.tensor(LINE_SEARCH_SCALES, dtype=self.dtype, device=self.device)
@@ -487,7 +486,7 @@ class PGOCore:
         3)`` (α = 0 last) under a searching step rule; the ``nonmonotone`` rule's window of local
         F values moves on by the chosen step."""
         t = self.state
-        change = scaled_changes(t, self.correction, poses, edge, candidates, crossing)
+        change = candidate_changes(t, self.correction, poses, edge, candidates, crossing)
         if self.step_rule == "nonmonotone":
             recent = t.recent_f.view(edge.shape[0], -1)
             choice = nonmonotone_choice(change, recent)

@@ -17,7 +17,7 @@ from envs.geometry import _gather_rows, _offset, _scatter_rows, between, compose
 from popbench.objective import edge_costs
 
 #: the step scales the ``line-search`` and ``nonmonotone`` step rules try, in decreasing order
-#: (:func:`scaled_changes`; 0: no move)
+#: (:func:`candidate_changes`; 0: no move)
 LINE_SEARCH_SCALES = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.0)
 #: the local F values the ``nonmonotone`` rule's reference is the largest of (the current one and
 #: the agent's ``M − 1`` before it): Grippo, Lampariello & Lucidi's (1986) usual M = 10
@@ -78,7 +78,7 @@ def move_subtree(
     flat[rows] = compose(transform[rows // poses.shape[1], 0], flat[rows])
 
 
-def scaled_changes(
+def candidate_changes(
     t: CoreState,
     correction: str,
     poses: torch.Tensor,
@@ -114,7 +114,7 @@ def scaled_changes(
 
 def monotone_choice(change: torch.Tensor) -> torch.Tensor:
     """``(G,)`` int64: the index of the scale that lowers each agent's local F the most, of
-    the changes ``change (G, K)`` (:func:`scaled_changes`); α = 0 is a candidate, so the chosen
+    the changes ``change (G, K)`` (:func:`candidate_changes`); α = 0 is a candidate, so the chosen
     step never raises F (the ``line-search`` step rule)."""
     return change.argmin(-1)
 
