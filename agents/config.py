@@ -219,8 +219,9 @@ class TaskConfig:
             the environment adds one Gauss–Newton step on the chosen edge, envs.sweep, and the
             actor's Δ corrects it).
         step_rule: "clip" (the executed Δ clipped to the bounds: every committed actor was
-            trained so) or "line-search" (unclipped, scaled so that no step raises the robot's
-            local F; envs.core.PGOCore, docs/environment.md "The step rule").
+            trained so), "line-search" (unclipped, scaled so that no step raises the robot's
+            local F) or its variants "nonmonotone" and "search-with-clip" (envs.core.PGOCore,
+            docs/environment.md "The step rule").
 
     The defaults are the paper's environment, which every checkpoint written before these
     options existed was trained in (a checkpoint without a "task" entry reads as them).

@@ -238,7 +238,7 @@ def solve_prop_v1(
         consensus: one of popbench.reconcile.CONSENSUS_MODES ("admm": the paper's plain ADMM;
             "aligned-admm": the robots' frames aligned first).
         consensus_iterations: ADMM iterations at most.
-        step_rule: the environment's step rule (envs.core.PGOCore: "clip" or "line-search",
+        step_rule: the environment's step rule (envs.core.PGOCore, popbench.choices.STEP_RULES,
             :data:`DEFAULT_STEP_RULE`: no step raises a robot's local F; None: the checkpoint's
             own, "clip" for every committed actor).
 

@@ -371,7 +371,8 @@ def heldout_command(
         DEFAULT_STEP_RULE,
         help="The environment's step rule in every episode row: line-search (prop-v1's: the "
         "executed correction unclipped, scaled so that no step raises a robot's local F) | clip "
-        "(clipped to its bounds, as the actors were trained; the tables before 2026-12-05); "
+        "(clipped to its bounds, as the actors were trained; the tables before 2026-12-05) | "
+        "nonmonotone, search-with-clip (two measured variants of the line search); "
         "docs/environment.md.",
     ),
     policy: str = typer.Option(

@@ -83,8 +83,8 @@ class HeldoutConfig:
             loop-closure candidates; 0 = none, the cells of before); with it the learned rows
             are scored as outlier classifiers (gate_auc, gate_precision, gate_recall).
         step_rule: the environment's step rule in every episode row (envs.core.PGOCore:
-            ``"clip"``, the one the actors were trained in, or ``"line-search"``, prop-v1's
-            default, :data:`popbench.choices.DEFAULT_STEP_RULE`).
+            ``"clip"``, the one the actors were trained in, ``"line-search"``, prop-v1's
+            default, :data:`popbench.choices.DEFAULT_STEP_RULE`, or one of its variants).
     """
 
     noise: tuple[str, ...] = ("V2",)
