@@ -79,7 +79,7 @@ def make_core(  # noqa: ANN201
         start_noise=experiment.start_noise,
         outlier_rate_max=experiment.outlier_rate_max,
     )
-    sampler = ProblemSampler(source, batch, seed)
+    sampler = ProblemSampler(source, batch, seed, dims)
     sampler.episodes[:] = first_episode
     problems = [sampler.draw(element) for element in range(batch)]
     return PGOCore.for_problems(problems, task, dims=dims), sampler

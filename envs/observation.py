@@ -57,6 +57,12 @@ def _local_sizes(problem: DistributedProblem) -> tuple[int, int, int]:
     return tuple(int(value) for value in np.max(sizes, axis=0))
 
 
+def fits(problem: DistributedProblem, dims: Dimensions) -> bool:
+    """Whether every local graph of ``problem`` fits the padding maxima ``dims``."""
+    limits = (dims.vertices, dims.edges, dims.degree)
+    return all(size <= limit for size, limit in zip(_local_sizes(problem), limits, strict=True))
+
+
 def check_fits(problem: DistributedProblem, dims: Dimensions) -> None:
     """Raise :class:`ValueRangeError` naming the option when ``problem`` exceeds ``dims``."""
     names = ("max_vertices", "max_edges", "max_degree")

@@ -84,7 +84,7 @@ class PGOParallelEnv(ParallelEnv):
             raise ValueRangeError("render_mode", render_mode, "None, 'rgb_array'")
         self.core = PGOCore(num_agents, dims, 1, delta_max, reward, invalid_edge, **modes)  # type: ignore[arg-type]
         self.render_mode, self.with_action_mask = render_mode, action_mask
-        self.sampler = ProblemSampler(source, 1, seed)
+        self.sampler = ProblemSampler(source, 1, seed, dims)
         self.dims = dims
         self.delta_max = self.core.action_bound.numpy().astype(np.float32)
         self.possible_agents = [f"agent_{index}" for index in range(num_agents)]

@@ -123,7 +123,7 @@ class PGOEnv(EnvBase):
             dtype,
             **modes,  # type: ignore[arg-type]
         )
-        self.sampler = ProblemSampler(source, self.problems, seed)
+        self.sampler = ProblemSampler(source, self.problems, seed, dims)
         self.expert = None
         if labels:
             from envs.expert import Expert
