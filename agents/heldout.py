@@ -45,7 +45,7 @@ from popbench import objective
 from popbench.datasets import file_sha256
 from popbench.distributed import DistributedProblem
 from popbench.metrics import ate
-from popbench.reconcile import reconcile
+from popbench.reconcile import DEFAULT_CONSENSUS_ITERATIONS, reconcile
 from popbench.solvers.local_lm import local_optima
 from popbench.synthetic import make_problem
 
@@ -262,7 +262,8 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
         local = run.local_poses
     else:
         local = local_estimates(spec["row"], problem, spec)
-    reconciled = reconcile(problem, local, spec["consensus"])
+    iterations = spec.get("consensus_iterations", DEFAULT_CONSENSUS_ITERATIONS)
+    reconciled = reconcile(problem, local, spec["consensus"], iterations)
     scores: dict[str, float] = {}
     if learned and rate > 0:  # the gate prop-v1 flags from (agents.methods.flag_gate)
         task = cached_actor(spec["checkpoint"], "cpu")[1]

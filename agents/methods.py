@@ -46,7 +46,12 @@ from popbench import objective
 from popbench.choices import DEFAULT_STEP_RULE
 from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result, method_record
-from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
+from popbench.reconcile import (
+    DEFAULT_CONSENSUS,
+    DEFAULT_CONSENSUS_ITERATIONS,
+    check_consensus,
+    reconcile,
+)
 
 if TYPE_CHECKING:
     from envs.core import PGOCore
@@ -221,7 +226,7 @@ def solve_prop_v1(
     checkpoint: str | Path | None = None,
     device: str = "cpu",
     consensus: str = DEFAULT_CONSENSUS,
-    consensus_iterations: int = 200,
+    consensus_iterations: int = DEFAULT_CONSENSUS_ITERATIONS,
     step_rule: str | None = DEFAULT_STEP_RULE,
     **_: object,
 ) -> Result:

@@ -25,6 +25,7 @@ from popbench.errors import ValueRangeError
 
 CONSENSUS_MODES = ("admm", "aligned-admm")
 DEFAULT_CONSENSUS = "aligned-admm"  # chosen by measurement: docs/consensus.md
+DEFAULT_CONSENSUS_ITERATIONS = 200  # the ADMM's budget in every table (docs/consensus.md)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -62,7 +63,7 @@ def reconcile(
     problem: DistributedProblem,
     local_poses: list[np.ndarray],
     mode: str = DEFAULT_CONSENSUS,
-    iterations: int = 200,
+    iterations: int = DEFAULT_CONSENSUS_ITERATIONS,
 ) -> Reconciled:
     """Reconcile ``local_poses`` (one ``(n_r, 3)`` array per robot, rows in
     ``problem.local_vertices(r)`` order) into a global estimate by ``mode``.

@@ -65,6 +65,20 @@ def test_heldout_seeds_are_above_every_training_seed():
     assert min(seeds) >= 2**32  # envs.sampler.ProblemSampler draws 32-bit seeds
 
 
+def test_the_consensus_budget_is_a_cell_option(tmp_path):
+    base = heldout.HeldoutConfig(robots=(3,), problems=1, poses_per_robot=12, rows=("no-op",))
+    assert "consensus_iterations" not in heldout.cell_specs(base)[0]  # earlier cells stay valid
+    frames = {}
+    for iterations in (1, 400):
+        config = dataclasses.replace(
+            base, consensus_iterations=iterations, out=tmp_path / str(iterations)
+        )
+        assert heldout.cell_specs(config)[0]["consensus_iterations"] == iterations
+        heldout.run_heldout(config, Run(progress=False))
+        frames[iterations] = pd.read_csv(config.out / "heldout.csv")
+    assert frames[400]["F"].iloc[0] < frames[1]["F"].iloc[0]  # more ADMM iterations, lower F
+
+
 def test_unknown_row_is_refused(tmp_path):
     from popbench.errors import ValueRangeError
 

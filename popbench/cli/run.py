@@ -359,6 +359,14 @@ def heldout_command(
         "prop-v1 and local-lm use, popbench.reconcile.DEFAULT_CONSENSUS).",
         show_default=False,
     ),
+    consensus_iterations: int = typer.Option(
+        None,
+        min=1,
+        help="The consensus's ADMM iterations at most (default: the tables' 200, "
+        "popbench.reconcile.DEFAULT_CONSENSUS_ITERATIONS); more shows what a converged "
+        "consensus keeps of each row.",
+        show_default=False,
+    ),
     out: options.Out = Path("results/heldout"),
     outlier_rate: float = typer.Option(
         0.0,
@@ -418,7 +426,7 @@ def heldout_command(
         run_heldout,
         summary_json,
     )
-    from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS
+    from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS, DEFAULT_CONSENSUS_ITERATIONS
 
     if policy is None and (policy_arg, policy_name, policy_env) != (None, None, None):
         raise PopbenchError("--policy-arg, --policy-name and --policy-env need --policy")
@@ -437,6 +445,7 @@ def heldout_command(
         if rows is None
         else canonical_rows(options.names(rows, ROWS + tuple(ROW_ALIASES), "--rows")),
         consensus=options.names(consensus or DEFAULT_CONSENSUS, CONSENSUS_MODES, "--consensus")[0],
+        consensus_iterations=consensus_iterations or DEFAULT_CONSENSUS_ITERATIONS,
         checkpoint=checkpoint,
         imitation_checkpoint=imitation_checkpoint,
         out=out,

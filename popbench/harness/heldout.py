@@ -32,7 +32,7 @@ from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.runner import run_experiment
 from popbench.methods import entry_point
 from popbench.metrics import bootstrap_ci
-from popbench.reconcile import DEFAULT_CONSENSUS
+from popbench.reconcile import DEFAULT_CONSENSUS, DEFAULT_CONSENSUS_ITERATIONS
 
 HELDOUT_SEED_BASE = 2**32
 ROWS = (
@@ -69,6 +69,8 @@ class HeldoutConfig:
         rows: the rows to compute (a subset of :data:`ROWS`, in that order).
         consensus: the consensus every row goes through (one of
             :data:`popbench.reconcile.CONSENSUS_MODES`).
+        consensus_iterations: its ADMM iterations at most (the tables' 200 by default; more to
+            see what a converged consensus keeps of each row).
         checkpoint: the actor of the ``ga-sac`` row (None: the committed fine-tuned one).
         imitation_checkpoint: the actor of the ``imitation`` and ``learned-order`` rows (None:
             the committed one).
@@ -93,6 +95,7 @@ class HeldoutConfig:
     poses_per_robot: int = 60
     rows: tuple[str, ...] = ROWS
     consensus: str = DEFAULT_CONSENSUS
+    consensus_iterations: int = DEFAULT_CONSENSUS_ITERATIONS
     checkpoint: Path | None = None
     imitation_checkpoint: Path | None = None
     out: Path = Path("results/heldout")
@@ -157,6 +160,8 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                         spec["outlier_rate"] = config.outlier_rate
                     if config.step_rule != "clip":  # absent for the cells before the option
                         spec["step_rule"] = config.step_rule
+                    if config.consensus_iterations != DEFAULT_CONSENSUS_ITERATIONS:
+                        spec["consensus_iterations"] = config.consensus_iterations
                     if row in checkpoints:
                         if checkpoints[row] is None:
                             continue

@@ -20,7 +20,12 @@ from popbench.distributed import DistributedProblem, LocalGraph
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
 from popbench.methods import Budget, Result
-from popbench.reconcile import DEFAULT_CONSENSUS, check_consensus, reconcile
+from popbench.reconcile import (
+    DEFAULT_CONSENSUS,
+    DEFAULT_CONSENSUS_ITERATIONS,
+    check_consensus,
+    reconcile,
+)
 from popbench.solvers.lm import OBJECTIVES, solve_graph
 from popbench.status import measure
 
@@ -208,7 +213,7 @@ def solve(
     budget: Budget | None = None,
     local_iterations: int = LOCAL_ITERATIONS,
     consensus: str = DEFAULT_CONSENSUS,
-    consensus_iterations: int = 200,
+    consensus_iterations: int = DEFAULT_CONSENSUS_ITERATIONS,
     objective: str = "F",
     **_: object,
 ) -> Result:
