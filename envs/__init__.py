@@ -18,8 +18,8 @@ exact local-graph maxima; for the synthetic generator, the maxima over :data:`PR
 (independent of ``seed``, so envs with different seeds share their specs), times
 :data:`PADDING_MARGIN`, rounded up to a multiple of 8. A later problem of the stream that does
 not fit is replaced by a redraw (:class:`envs.sampler.ProblemSampler`, which counts them); one
-given to ``reset`` that does not fit raises a one-line :class:`popbench.errors.ValueRangeError`
-naming the option to raise.
+loaded into the core directly (``PGOCore.for_problems``, ``load``) that does not fit raises a
+one-line :class:`popbench.errors.ValueRangeError` naming the option to raise.
 
 torchrl and pettingzoo are imported only when an env is made. On a small shared CPU, prefer
 ``torch.set_num_threads(1)``: the env's tensors are small (measured: docs/environment.md).

@@ -23,7 +23,7 @@ class ProblemSampler:
     With ``dims`` (the env's padding maxima), a drawn problem that exceeds them is replaced by
     the draw of ``SeedSequence([seed, b, k, j])``, j = 1, 2, … (at most :data:`MAX_REDRAWS`): the
     stream stays the same wherever its problems fit, and a generator whose sizes have a longer
-    tail than the padding's probes (docs/environment.md) trains on a distribution truncated
+    tail than the padding's probes (:mod:`envs`) trains on a distribution truncated
     there; ``redrawn`` counts the replaced problems."""
 
     def __init__(
