@@ -154,6 +154,20 @@ def test_colour_classes_are_independent_sets_covering_every_robot(small_graph):
     assert [g.tolist() for g in groups] == [[1], [0, 2]]
 
 
+def test_the_certificate_is_the_same_from_the_dense_and_the_lanczos_solver(
+    small_graph, monkeypatch
+):
+    from baselines.rbcd import rounding
+
+    problem = with_start(DistributedProblem.from_graph(small_graph, 3), "chordal")
+    dense = cc_pgo.solve(problem, Budget(iterations=150), certify=True)
+    monkeypatch.setattr(rounding, "DENSE_CERTIFICATE_ROWS", 0)  # ARPACK, from its fixed start
+    lanczos = cc_pgo.solve(problem, Budget(iterations=150), certify=True)
+    assert lanczos.extras["certificate_min_eig"] == pytest.approx(
+        dense.extras["certificate_min_eig"], abs=1e-7
+    )
+
+
 @pytest.mark.parametrize("solve", [cc_pgo.solve, ml_pgo.solve])
 def test_small_graph_converges_certifiably_with_consistent_accounting(small_graph, solve):
     problem = with_start(DistributedProblem.from_graph(small_graph, 3), "chordal")

@@ -67,11 +67,18 @@ def round_solution(
     return se2.compose(anchor_pose[None, :], se2.between(poses[anchor][None, :], poses))
 
 
+#: certificates of at most this many rows (1,000 poses) get λ_min from a dense eigensolver: exact
+#: and deterministic. ARPACK from its default random start once failed to converge on a 90-row
+#: certificate (λ ≈ 0 is a multiple eigenvalue at a critical point, where SXᵀ = 0).
+DENSE_CERTIFICATE_ROWS = 3_000
+
+
 def certificate_min_eigenvalue(q: sp.spmatrix, x: np.ndarray) -> float:
     """``λ_min(S)`` with ``S = Q − SymBlockDiag(Λ)`` (SE-Sync's certificate; not in dpgo's code):
     ``Λ_i`` on the rotation rows of pose ``i``, zero on translations. ``λ_min ≥ −ε`` certifies
     that ``X`` is a global minimiser of the relaxation (``SXᵀ = 0`` at critical points, so
-    ``λ_min ≤ 0``)."""
+    ``λ_min ≤ 0``). Dense up to :data:`DENSE_CERTIFICATE_ROWS` rows, else Lanczos (ARPACK) from a
+    fixed start vector."""
     lam = multipliers(x, apply_q(q, x))  # (N, 3)
     n = x.shape[0]
     lam_full = np.zeros((n, 3, 3))
@@ -82,5 +89,8 @@ def certificate_min_eigenvalue(q: sp.spmatrix, x: np.ndarray) -> float:
     rows, cols = np.broadcast_arrays(rows, cols)
     block_diag = sp.csr_matrix((lam_full.ravel(), (rows.ravel(), cols.ravel())), shape=q.shape)
     certificate = (q - block_diag).tocsc()
-    value = eigsh(certificate, k=1, which="SA", tol=1e-8, maxiter=20 * q.shape[0])[0]
+    if certificate.shape[0] <= DENSE_CERTIFICATE_ROWS:
+        return float(np.linalg.eigvalsh(certificate.toarray())[0])
+    start = np.random.default_rng(0).standard_normal(certificate.shape[0])  # reproducible
+    value = eigsh(certificate, k=1, which="SA", tol=1e-8, maxiter=20 * q.shape[0], v0=start)[0]
     return float(value[0])
