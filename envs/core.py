@@ -249,6 +249,8 @@ class PGOCore:
             if step_rule != "clip"
             else self.step_modes
         )
+        #: the searching rules' step scales, α = 0 last (envs.correction.LINE_SEARCH_SCALES)
+        self.search_scales = torch.tensor(LINE_SEARCH_SCALES, dtype=dtype, device=self.device)
         self.readout_modes = ReadoutModes(observation == "invariant", whitened)
         self.problems: list[DistributedProblem | None] = [None] * batch
         self._state: CoreState | None = None
@@ -433,8 +435,7 @@ class PGOCore:
         crossing = boundary(t, inside)  # the same edges before and after the move
         executed = self.metric_delta(flat_edge, action + self._base_step(flat_edge, crossing))
         if self.step_rule != "clip":
-            scales = torch.tensor(LINE_SEARCH_SCALES, dtype=self.dtype, device=self.device)
-            candidates = executed * scales.view(1, -1, 1)  # (G, K, 3), α = 0 last
+            candidates = executed * self.search_scales.view(1, -1, 1)  # (G, K, 3)
             if self.step_rule == "search-with-clip":  # and the clip rule's own step
                 clipped = action + self._base_step(flat_edge, crossing, self.step_modes)
                 clipped = self.metric_delta(flat_edge, clipped, clip=True)
