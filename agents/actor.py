@@ -21,7 +21,7 @@ is dropped), so the continuous target entropy is independent of Δmax.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -169,7 +169,7 @@ class HybridActor(nn.Module):
         prev_edge: Tensor,
         prev_delta: Tensor,
         deterministic: bool | None = None,
-        edge: Tensor | None = None,
+        edge: Tensor | Callable[[Tensor], Tensor] | None = None,
     ) -> ActorOutput:
         """One decision step for G robots.
 
@@ -181,7 +181,9 @@ class HybridActor(nn.Module):
             deterministic: arg-max edge, tanh(mean) correction and noise-free gates; None reads
                 tensordict's interaction type (sampling unless DETERMINISTIC/MODE/MEAN).
             edge: [G] long, an edge to take instead of choosing one (teacher forcing: the
-                correction is then the one for this edge); None lets the edge head choose.
+                correction is then the one for this edge), or a function of the log π(e | s)
+                [G, E + 1] that draws it (PPO's categorical sample: one pass, not two); None
+                lets the edge head choose.
         """
         deterministic = resolve_deterministic(deterministic)
         encoding = self.encoder(graphs, deterministic)
@@ -192,16 +194,22 @@ class HybridActor(nn.Module):
         )
         memory = self.memory(memory_input, memory)
         context = memory[:, -1]
-        features = torch.cat(
-            [embeddings, context.unsqueeze(1).expand(-1, embeddings.shape[1], -1)], dim=-1
+        log_probs = masked_log_softmax(
+            self.edge_scores(embeddings, context, graphs.action_mask), graphs.action_mask
         )
-
-        log_probs = masked_log_softmax(self.edge_head(features).squeeze(-1), graphs.action_mask)
         if edge is None:
             edge, edge_weights = self._choose_edge(log_probs, deterministic)
         else:
+            edge = edge(log_probs) if callable(edge) else edge
             edge_weights = F.one_hot(edge, log_probs.shape[-1]).to(log_probs.dtype)
-        chosen = torch.einsum("ge,ged->gd", edge_weights, features)
+        # [embedding ‖ context] of the choice; Σ_e w_e = 1, and its gradient reaches every w_e
+        chosen = torch.cat(
+            [
+                torch.einsum("ge,ged->gd", edge_weights, embeddings),
+                edge_weights.sum(-1, keepdim=True) * context,
+            ],
+            dim=-1,
+        )
         if self.config.base_features:
             base = base_inputs(
                 *chosen_base(graphs.base_step, graphs.base_model, edge_weights), self.delta_max
@@ -227,6 +235,27 @@ class HybridActor(nn.Module):
             delta_mean=mean,
             delta_log_std=log_std,
         )
+
+    def edge_scores(self, embeddings: Tensor, context: Tensor, action_mask: Tensor) -> Tensor:
+        """[G, E + 1] edge-head scores of the allowed choices (−inf elsewhere).
+
+        The head's first layer on [embedding ‖ context] is split as W_e·embedding + W_c·context:
+        the context part once per graph, the edge part only on the `action_mask` [G, E + 1]
+        rows (the unprocessed real edges; on average a third of the padded slots).
+
+        Args:
+            embeddings: [G, E + 1, 2d + d_e + 3] (encoder.edge_embeddings).
+            context: [G, H] the memory's output.
+        """
+        first, last = self.edge_head[0], self.edge_head[2]
+        width = embeddings.shape[-1]
+        allowed = action_mask.reshape(-1).nonzero().squeeze(-1)
+        per_graph = F.linear(context, first.weight[:, width:], first.bias)  # [G, hidden]
+        rows = embeddings.reshape(-1, width).index_select(0, allowed)
+        graph_of = torch.div(allowed, action_mask.shape[-1], rounding_mode="floor")
+        hidden = torch.relu(F.linear(rows, first.weight[:, :width]) + per_graph[graph_of])
+        scores = torch.full_like(action_mask, float("-inf"), dtype=embeddings.dtype)
+        return scores.view(-1).index_copy(0, allowed, last(hidden).squeeze(-1)).view_as(scores)
 
     def _choose_edge(self, log_probs: Tensor, deterministic: bool) -> tuple[Tensor, Tensor]:
         """Arg-max, or a straight-through Gumbel-softmax sample: (index [G], weights [G, E])."""

@@ -145,6 +145,25 @@ def mix_bases(coefficients: Tensor, basis_products: Tensor, out_dim: int) -> Ten
     return mixed
 
 
+def edge_conditioned_messages(
+    coefficients: Tensor, sources: Tensor, bases_weight: Tensor, out_dim: int
+) -> Tensor:
+    """[M, d_out] messages Σ_k φ̂_k B_k h_q (eq. ecc_message) as one matrix product
+    (φ̂ ⊗ h_q) · [B_0 … B_K]ᵀ, from the coefficients φ̂ [M, K+1], the sources' embeddings h_q
+    [M, d_in] and the bases' weight [(K+1)·d_out, d_in] (`EdgeConditionedConv.bases`).
+
+    The same function as `mix_bases` of the per-node products B_k h, in another order of
+    summation: here the [M, (K+1)·d_in] outer product feeds one GEMM, and the backward pass
+    scatters only d_in-wide rows to the nodes (instead of (K+1)·d_out-wide ones) and makes no
+    per-k strided slices, whose gradients are zero-filled copies of the whole product (the
+    training step's largest cost before, docs/algorithms.md, "Cost").
+    """
+    count, in_dim = sources.shape
+    bases = bases_weight.view(-1, out_dim, in_dim).permute(1, 0, 2).reshape(out_dim, -1)
+    outer = (coefficients.unsqueeze(-1) * sources.unsqueeze(1)).reshape(count, -1)
+    return outer @ bases.T
+
+
 class EdgeConditionedConv(MessagePassing):
     """One edge-conditioned layer, eqs. ecc_weight, ecc_message, mean_aggr, node_update.
 
@@ -180,13 +199,11 @@ class EdgeConditionedConv(MessagePassing):
         Returns:
             [M, d_out].
         """
-        return self.edge_updater(edge_index, x=self.bases(x), edge_attr=edge_attr)
-
-    def edge_update(self, x_j: Tensor, edge_attr: Tensor) -> Tensor:
         coefficients = torch.cat(
             [torch.ones_like(edge_attr[:, :1]), self.edge_net(edge_attr)], dim=-1
         )
-        return mix_bases(coefficients, x_j, self.out_dim)
+        sources = x.index_select(0, edge_index[0])
+        return edge_conditioned_messages(coefficients, sources, self.bases.weight, self.out_dim)
 
     def forward(self, x: Tensor, edge_index: Tensor, messages: Tensor, degree: Tensor) -> Tensor:
         """Aggregate already-gated messages and update nodes (eqs. mean_aggr, node_update).
@@ -312,35 +329,38 @@ class GraphEncoder(nn.Module):
         )
 
     def forward(self, graphs: GraphBatch, deterministic: bool) -> Encoding:
+        """Encode the G graphs; messages and gates are computed on the real edges alone (packed:
+        padding edges carry no message, so dropping them changes nothing but the cost)."""
         num_graphs, num_vertices, _ = graphs.node_features.shape
         num_edges = graphs.edge_index.shape[-1]
         x = graphs.node_features.reshape(num_graphs * num_vertices, -1)
+        real = graphs.edge_mask.reshape(-1).nonzero().squeeze(-1)  # [M] flat ids of real edges
         offsets = torch.arange(num_graphs, device=x.device).view(-1, 1) * num_vertices
         local = graphs.edge_index.clamp(0, num_vertices - 1)
-        tails = (local[:, 0] + offsets).reshape(-1)
-        heads = (local[:, 1] + offsets).reshape(-1)
+        tails = (local[:, 0] + offsets).reshape(-1).index_select(0, real)
+        heads = (local[:, 1] + offsets).reshape(-1).index_select(0, real)
         # Forward direction q → p carries m_pq to the tail; the reverse one m_qp to the head.
         directed_index = torch.stack([torch.cat([heads, tails]), torch.cat([tails, heads])])
-        attr = graphs.edge_attr.reshape(num_graphs * num_edges, -1)
+        attr = graphs.edge_attr.reshape(num_graphs * num_edges, -1).index_select(0, real)
         flag = torch.zeros_like(attr[:, :1])
         directed_attr = torch.cat(
             [torch.cat([attr, flag], -1), torch.cat([attr, flag + 1.0], -1)], dim=0
         )
-        valid = graphs.edge_mask.reshape(-1).to(x.dtype)
-        valid_both = torch.cat([valid, valid])
         degree = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
-        degree = degree.index_add(0, directed_index[1], valid_both).clamp(min=1.0)
-        residuals = graphs.residuals.reshape(-1, 3)
+        degree = degree.index_add(0, directed_index[1], torch.ones_like(directed_attr[:, 0]))
+        degree = degree.clamp(min=1.0)
+        residuals = graphs.residuals.reshape(-1, 3).index_select(0, real)
         log_info = attr[:, LOG_INFO_COLUMNS]
         inter_loop = attr[:, INTER_LOOP_COLUMN]
 
         gate_values, gate_logits = [], []
         h = x
+        count = real.shape[0]
         for conv, gate in zip(self.convs, self.gates, strict=True):
             messages = conv.messages(h, directed_index, directed_attr)  # [2M, d]
-            undirected = 0.5 * (messages[: valid.shape[0]] + messages[valid.shape[0] :])
+            undirected = 0.5 * (messages[:count] + messages[count:])
             alpha = gate.logits(undirected, residuals, log_info, inter_loop)
-            z = gate.relax(alpha, deterministic) * valid
+            z = gate.relax(alpha, deterministic)
             gate_values.append(z)
             gate_logits.append(alpha / gate.temperature)
             h = conv(h, directed_index, messages * torch.cat([z, z]).unsqueeze(-1), degree)
@@ -349,15 +369,23 @@ class GraphEncoder(nn.Module):
         node_weight = graphs.node_mask.to(x.dtype).unsqueeze(-1)
         pooled = (nodes * node_weight).sum(1) / node_weight.sum(1).clamp(min=1.0)
         shape = (len(self.convs), num_graphs, num_edges)
-        gates = torch.stack(gate_values).view(shape)
-        gate_l1 = gates.sum() / (valid.sum().clamp(min=1.0) * len(self.convs))
+        gates = unpack_edges(torch.stack(gate_values), real, shape)
+        gate_l1 = gates.sum() / (max(count, 1) * len(self.convs))
         return Encoding(
             nodes=nodes,
             pooled=pooled,
             gates=gates,
             gate_l1=gate_l1,
-            gate_logits=torch.stack(gate_logits).view(shape),
+            gate_logits=unpack_edges(torch.stack(gate_logits), real, shape),
         )
+
+
+def unpack_edges(packed: Tensor, real: Tensor, shape: tuple[int, int, int]) -> Tensor:
+    """[L, G, E] per-edge values from their [L, M] values on the real edges, whose flat ids
+    (g·E + e) are `real` [M]; 0 on padding."""
+    layers, graphs, edges = shape
+    full = packed.new_zeros(layers, graphs * edges)
+    return full.index_copy(1, real, packed).view(shape)
 
 
 def edge_embedding_width(hidden: int, edge_dim: int) -> int:

@@ -6,11 +6,13 @@ and writes its log-probability at ("agents", "sample_log_prob"), and the recurre
 GASACPolicy does. The distribution is that of the actor with noise-free gates
 (`deterministic=True` in the encoder): the hard-concrete gate noise is a regulariser of GA-SAC,
 but under PPO a log-probability that changes between the rollout and the update would add noise
-to every importance ratio. Sampling takes two actor passes (the edge, then the correction of
-that edge); evaluating a stored action one.
+to every importance ratio. Sampling takes one actor pass (the edge is drawn inside it, then the
+correction of that edge is read); evaluating a stored action one.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -39,6 +41,11 @@ ACTION_KEY = (AGENTS, "action")
 SAMPLE_LOG_PROB_KEY = (AGENTS, "sample_log_prob")
 
 
+def sample_edge(log_probs: torch.Tensor) -> torch.Tensor:
+    """[G] edges drawn from π(e | s), given as its log-probabilities [G, E + 1]."""
+    return Categorical(logits=log_probs).sample()
+
+
 class PPOPolicy(GASACPolicy):
     """Reads what GASACPolicy reads; writes ("agents", "action", "edge" | "delta"),
     ("agents", "sample_log_prob") [*, n] and the next recurrent state under ("next", "agents")."""
@@ -52,9 +59,10 @@ class PPOPolicy(GASACPolicy):
             *(("next",) + key for key in RECURRENT_KEYS),
         ]
 
-    def _act(self, tensordict: TensorDictBase, edge: torch.Tensor | None) -> ActorOutput:
+    def _act(self, tensordict: TensorDictBase, edge: torch.Tensor | Callable | None) -> ActorOutput:
         """One actor pass with noise-free gates over the [*, n] robots of `tensordict`; `edge`
-        [G] long takes that edge (None: the arg-max)."""
+        [G] long takes that edge, a function of the log-probabilities draws it (None: the
+        arg-max)."""
         action_mask = tensordict.get(ACTION_MASK_KEY)
         lead, choices = action_mask.shape[:-1], action_mask.shape[-1]
         graphs = GraphBatch.from_observation(tensordict.get(OBSERVATION_KEY), action_mask)
@@ -84,14 +92,13 @@ class PPOPolicy(GASACPolicy):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         lead = tensordict.get(ACTION_MASK_KEY).shape[:-1]
-        out = self._act(tensordict, None)
-        if not resolve_deterministic(None):  # sample the edge, then its correction
-            edge = Categorical(logits=out.edge_log_probs).sample()
-            out = self._act(tensordict, edge)
+        if resolve_deterministic(None):
+            out = self._act(tensordict, None)
+        else:  # sample the edge, then the correction of that edge, in one pass
+            out = self._act(tensordict, sample_edge)
             noise = torch.randn_like(out.delta_mean)
             pre_tanh = out.delta_mean + out.delta_log_std.exp() * noise
-            out.edge, out.delta = edge, self.actor.delta_max * torch.tanh(pre_tanh)
-            out.edge_weights = torch.nn.functional.one_hot(edge, out.edge_log_probs.shape[-1])
+            out.delta = self.actor.delta_max * torch.tanh(pre_tanh)
         action = TensorDict(
             {"edge": out.edge.reshape(lead), "delta": out.delta.reshape(*lead, 3)}, lead
         )
