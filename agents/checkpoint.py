@@ -138,14 +138,17 @@ def run_snapshots(out_dir: str | Path) -> dict[int, Path]:
 
 
 def snapshot_identity(path: str | Path) -> dict[str, Any]:
-    """What a snapshot's training config says the run compares: "algorithm", "start"
-    ("imitation" with --init-actor or an imitation phase, else "scratch"), "seed", and the task
-    its actor is scored on: "noise", "robots", "poses_per_robot"."""
+    """What a snapshot's training config says the run compares: "algorithm" (with "-team" or
+    "-team-shaped" when it trained on a team reward, envs.team), "start" ("imitation" with
+    --init-actor or an imitation phase, else "scratch"), "seed", and the task its actor is scored
+    on: "noise", "robots", "poses_per_robot" (the team task's held-out problems are the actors'
+    task's: both are scored by F after the consensus)."""
     config = TrainConfig.from_dict(read_checkpoint(path)["config"])
     experiment = config.experiment
     imitated = experiment.init_actor is not None or config.imitation.episodes > 0
+    team = {"none": "", "consensus": "-team", "consensus+shaping": "-team-shaped"}
     return {
-        "algorithm": config.algorithm_name,
+        "algorithm": config.algorithm_name + team[config.task.team_reward],
         "start": "imitation" if imitated else "scratch",
         "seed": experiment.seed,
         "noise": experiment.noise,

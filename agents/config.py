@@ -222,6 +222,8 @@ class TaskConfig:
             trained so), "line-search" (unclipped, scaled so that no step raises the robot's
             local F) or its variants "nonmonotone" and "search-with-clip" (envs.core.PGOCore,
             docs/environment.md "The step rule").
+        team_reward: "none" (each robot's own reward), "consensus" (the team's terminal
+            reward: the drop in F after the consensus, envs.team) or "consensus+shaping" (both).
 
     The defaults are the paper's environment, which every checkpoint written before these
     options existed was trained in (a checkpoint without a "task" entry reads as them).
@@ -232,6 +234,7 @@ class TaskConfig:
     action_scale: str = "metric"
     base: str = "none"
     step_rule: str = "clip"
+    team_reward: str = "none"
 
     def core_options(self) -> dict[str, str]:
         """The keyword options of envs.core.PGOCore."""

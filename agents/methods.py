@@ -140,13 +140,14 @@ def flag_gate(
 
 def episode_core(actor: HybridActor, problem: DistributedProblem, task: TaskConfig) -> PGOCore:
     """The one-problem environment (``B = 1``, reward F) of the actor's `task`, loaded with
-    `problem`, in which prop-v1's episode runs."""
+    `problem`, in which prop-v1's episode runs (no team reward: the episode's caller runs the
+    consensus itself)."""
     from envs.core import PGOCore
 
+    options: dict[str, object] = {"team_reward": "none"}
     if task.action_scale == "metric":  # the actor's bound is Δmax itself
-        options = {"delta_max": actor.delta_max.tolist()}
-    else:  # the actor's bound is the whitened one; the environment keeps its metric Δmax
-        options = {}
+        options["delta_max"] = actor.delta_max.tolist()
+    # else the actor's bound is the whitened one; the environment keeps its metric Δmax
     return PGOCore.for_problems([problem], task, **options)
 
 

@@ -70,6 +70,7 @@ from envs.geometry import _gather_rows, _scatter_rows, between, compose, residua
 from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
 from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
 from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
+from envs.team import TEAM_REWARDS, TeamReward
 from envs.tree import pack_trees, place_separators
 from popbench.choices import STEP_RULES
 from popbench.distributed import DistributedProblem
@@ -133,6 +134,8 @@ class PGOCore:
             the episode's reduction, and which a critic can read off the state.
         step_rule: ``"clip"``, ``"line-search"``, ``"nonmonotone"`` or ``"search-with-clip"``
             (below).
+        team_reward: ``"none"``, ``"consensus"`` or ``"consensus+shaping"`` (:mod:`envs.team`:
+            the drop in F after the consensus, paid to every robot at the episode's end).
 
     The modes:
 
@@ -202,11 +205,13 @@ class PGOCore:
         base: str = "none",
         terminal_bonus: bool = True,
         step_rule: str = "clip",
+        team_reward: str = "none",
     ) -> None:
         for name, value, allowed in (
             ("correction", correction, CORRECTIONS),
             ("observation", observation, OBSERVATIONS),
             ("action_scale", action_scale, ACTION_SCALES),
+            ("team_reward", team_reward, TEAM_REWARDS),
         ):
             if value not in allowed:
                 raise ValueRangeError(name, value, ", ".join(allowed))
@@ -253,6 +258,8 @@ class PGOCore:
         self.search_scales = torch.tensor(LINE_SEARCH_SCALES, dtype=dtype, device=self.device)
         self.readout_modes = ReadoutModes(observation == "invariant", whitened)
         self.problems: list[DistributedProblem | None] = [None] * batch
+        #: the terminal team reward (envs.team), None under team_reward="none"
+        self.team = TeamReward(team_reward) if team_reward != "none" else None
         self._state: CoreState | None = None
         #: what the last step rewrote: vertices ``(B·n, V+1)`` and edge slots ``(B·n, E+1)``
         self.last_moved: torch.Tensor | None = None
@@ -393,6 +400,8 @@ class PGOCore:
         local_f = edge_costs(t.residuals[index], t.kappa[index], t.tau[index]).sum(-1)
         t.recent_f[index] = local_f.unsqueeze(-1).expand(-1, -1, t.recent_f.shape[-1])
         self._base_model = None
+        if self.team is not None:
+            self.team.started(self, index.tolist())
 
     # -- dynamics --------------------------------------------------------------------------------
 
@@ -468,6 +477,8 @@ class PGOCore:
         finishing = (done & ~was_done).unsqueeze(-1) & self.terminal_bonus
         bonus = torch.log((t.initial_loss + EPSILON) / (t.loss + EPSILON))
         reward = reward + torch.where(finishing, bonus, torch.zeros_like(bonus))
+        if self.team is not None:
+            reward = self.team.reward(self, reward, done & ~was_done)
         return StepResult(reward, done, agent_done, repaired)
 
     def _base_step(

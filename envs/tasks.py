@@ -27,9 +27,9 @@ class Task:
     Attributes:
         name: the registry key.
         summary: one line: what the task asks of an algorithm.
-        correction, observation, action_scale, base, step_rule: the environment's modes
-            (:class:`envs.core.PGOCore`; every task trains under the clipped step rule, the one
-            the committed actors were trained in).
+        correction, observation, action_scale, base, step_rule, team_reward: the
+            environment's modes (:class:`envs.core.PGOCore`; every task trains under the
+            clipped step rule, the one the committed actors were trained in).
         reward: ``"localisation"`` (ground truth), ``"F"`` (the local objective), or None:
             ``"localisation"`` where the problems have ground truth, else ``"F"``.
         terminal_bonus: the terminal log-ratio bonus on the episode's last step.
@@ -48,6 +48,7 @@ class Task:
     action_scale: str = "metric"
     base: str = "none"
     step_rule: str = "clip"
+    team_reward: str = "none"
     reward: str | None = None
     terminal_bonus: bool = True
     robots: int = 7
@@ -65,6 +66,7 @@ class Task:
             "action_scale": self.action_scale,
             "base": self.base,
             "step_rule": self.step_rule,
+            "team_reward": self.team_reward,
         }
 
     def env_options(self) -> dict[str, Any]:
@@ -135,6 +137,14 @@ TASKS: dict[str, Task] = {
             "loop closures corrupted in every held-out problem",
             outlier_rate_max=0.2,
             eval_outlier_rate=0.1,
+        ),
+        dataclasses.replace(
+            ACTORS,
+            name="team",
+            summary="the actors' task rewarded as a team: every robot gets 1 - F_c(end) / "
+            "F_c(start) at the episode's end, F_c the F after the consensus (what the tables "
+            "score), 0 before (envs.team)",
+            team_reward="consensus",
         ),
         dataclasses.replace(
             ACTORS,

@@ -565,3 +565,83 @@ def test_critic_warmup_leaves_the_actor_unchanged(transitions) -> None:
         )
         assert moved == actor_moves
         assert not (session.loss.critic_network_params == critic_before).all()
+
+
+# ----- the fast training path against the dense computation it replaced ----------------------
+
+
+def dense_encoding(encoder: GraphEncoder, graphs: GraphBatch) -> tuple[Tensor, Tensor]:
+    """(nodes [G, V, d], gates [L, G, E]) computed the direct way: every padded edge slot, each
+    message as mix_bases of the per-node basis products B_k h (the incremental path's form),
+    padding masked out by its zero weight (deterministic gates)."""
+    from agents.encoder import INTER_LOOP_COLUMN, LOG_INFO_COLUMNS, mix_bases
+
+    count, vertices, _ = graphs.node_features.shape
+    edges = graphs.edge_index.shape[-1]
+    offsets = torch.arange(count).view(-1, 1) * vertices
+    local = graphs.edge_index.clamp(0, vertices - 1)
+    tails, heads = (local[:, 0] + offsets).reshape(-1), (local[:, 1] + offsets).reshape(-1)
+    attr = graphs.edge_attr.reshape(count * edges, -1)
+    valid = graphs.edge_mask.reshape(-1).float()
+    degree = torch.zeros(count * vertices).index_add(0, tails, valid).index_add(0, heads, valid)
+    h = graphs.node_features.reshape(count * vertices, -1)
+    gates = []
+    for conv, gate in zip(encoder.convs, encoder.gates, strict=True):
+        products = conv.bases(h)
+        coefficients = [
+            torch.cat(
+                [torch.ones_like(attr[:, :1]), conv.edge_net(torch.cat([attr, flag], -1))], -1
+            )
+            for flag in (torch.zeros_like(attr[:, :1]), torch.ones_like(attr[:, :1]))
+        ]
+        forward = mix_bases(coefficients[0], products[heads], conv.out_dim)  # to the tail
+        reverse = mix_bases(coefficients[1], products[tails], conv.out_dim)  # to the head
+        z = gate(
+            0.5 * (forward + reverse),
+            graphs.residuals.reshape(-1, 3),
+            attr[:, LOG_INFO_COLUMNS],
+            attr[:, INTER_LOOP_COLUMN],
+            deterministic=True,
+        )
+        z = z * valid
+        summed = torch.zeros(count * vertices, conv.out_dim)
+        summed = summed.index_add(0, tails, z[:, None] * forward)
+        summed = summed.index_add(0, heads, z[:, None] * reverse)
+        mean = summed / degree.clamp(min=1.0)[:, None]
+        h = conv.activation(conv.update_net(torch.cat([h, mean], -1)))
+        gates.append(z.view(count, edges))
+    return h.view(count, vertices, -1), torch.stack(gates)
+
+
+def test_the_packed_encoder_and_split_edge_head_equal_the_dense_computation() -> None:
+    """A committed actor on a real observation (two problems of seven robots, mid-episode, so
+    that processed edges are masked): the training path's nodes, gates and log π(e | s) equal
+    the dense computation's to float32 round-off, and so do their arg-max edges."""
+    from pathlib import Path
+
+    import envs
+    from agents.actor import masked_log_softmax
+    from agents.checkpoint import load_actor
+
+    root = Path(__file__).resolve().parents[1]
+    actor, config = load_actor(root / "agents/checkpoints/actor-V2-n7-residual.pt")
+    env = envs.make_torchrl_env(task="actors", batch_size=2, seed=11)
+    tensordict = env.rand_step(env.reset())["next"]
+    tensordict = env.rand_step(tensordict)["next"]
+    mask = tensordict["agents", "action_mask"]
+    graphs = GraphBatch.from_observation(tensordict["agents", "observation"], mask)
+    with torch.no_grad():
+        encoding = actor.encoder(graphs, deterministic=True)
+        nodes, gates = dense_encoding(actor.encoder, graphs)
+        torch.testing.assert_close(encoding.nodes, nodes, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(encoding.gates, gates, rtol=1e-5, atol=1e-5)
+        embeddings = edge_embeddings(nodes, graphs)
+        context = torch.randn(graphs.num_graphs, actor.memory.hidden)
+        features = torch.cat([embeddings, context[:, None].expand(-1, embeddings.shape[1], -1)], -1)
+        dense = masked_log_softmax(actor.edge_head(features).squeeze(-1), graphs.action_mask)
+        split = masked_log_softmax(
+            actor.edge_scores(embeddings, context, graphs.action_mask), graphs.action_mask
+        )
+    assert torch.equal(torch.isfinite(dense), graphs.action_mask)
+    torch.testing.assert_close(split, dense, rtol=1e-5, atol=1e-5)
+    assert torch.equal(split.argmax(-1), dense.argmax(-1))

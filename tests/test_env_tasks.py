@@ -24,11 +24,11 @@ SMALL = {"robots": 3, "poses_per_robot": 12}  # overrides that keep the probes q
 
 
 def test_the_registry_has_the_paper_game_the_actors_task_and_harder_tasks() -> None:
-    assert {"paper", "actors", "big-maps", "noisy", "outliers"} <= set(TASKS)
+    assert {"paper", "actors", "big-maps", "noisy", "outliers", "team"} <= set(TASKS)
     for name, task in TASKS.items():
         assert task.name == name and task.summary
-    harder = [task for task in TASKS.values() if task.name not in ("paper", "actors")]
-    for task in harder:  # each changes the actors' task in its problems only
+    harder = [task for task in TASKS.values() if task.name not in ("paper", "actors", "team")]
+    for task in harder:  # each changes the actors' task in its problems only (team: its reward)
         assert task.core_options() == ACTORS.core_options()
         assert (task.reward, task.terminal_bonus) == (ACTORS.reward, ACTORS.terminal_bonus)
     with pytest.raises(ValueRangeError, match="paper, actors"):
