@@ -36,14 +36,16 @@ from torchrl.envs import TensorDictPrimer
 from agents.config import ModelConfig
 from agents.encoder import (
     BASE_INPUTS,
+    RESIDUAL_FEATURES,
     Encoding,
     GraphBatch,
     GraphEncoder,
     Memory,
     base_inputs,
     chosen_base,
+    chosen_edge_embedding,
     edge_embedding_width,
-    edge_embeddings,
+    symlog,
 )
 
 DETERMINISTIC_INTERACTIONS = (
@@ -187,16 +189,14 @@ class HybridActor(nn.Module):
         """
         deterministic = resolve_deterministic(deterministic)
         encoding = self.encoder(graphs, deterministic)
-        embeddings = edge_embeddings(encoding.nodes, graphs)  # [G, E + 1, 2d + d_e]
-        prev_embedding = torch.einsum("ge,ged->gd", prev_edge.to(embeddings.dtype), embeddings)
+        nodes = encoding.nodes
+        prev_embedding = chosen_edge_embedding(nodes, graphs, prev_edge)
         memory_input = torch.cat(
             [encoding.pooled, prev_embedding, prev_delta / self.delta_max], dim=-1
         )
         memory = self.memory(memory_input, memory)
         context = memory[:, -1]
-        log_probs = masked_log_softmax(
-            self.edge_scores(embeddings, context, graphs.action_mask), graphs.action_mask
-        )
+        log_probs = masked_log_softmax(self.edge_scores(nodes, graphs, context), graphs.action_mask)
         if edge is None:
             edge, edge_weights = self._choose_edge(log_probs, deterministic)
         else:
@@ -205,7 +205,7 @@ class HybridActor(nn.Module):
         # [embedding ‖ context] of the choice; Σ_e w_e = 1, and its gradient reaches every w_e
         chosen = torch.cat(
             [
-                torch.einsum("ge,ged->gd", edge_weights, embeddings),
+                chosen_edge_embedding(nodes, graphs, edge_weights),
                 edge_weights.sum(-1, keepdim=True) * context,
             ],
             dim=-1,
@@ -236,25 +236,43 @@ class HybridActor(nn.Module):
             delta_log_std=log_std,
         )
 
-    def edge_scores(self, embeddings: Tensor, context: Tensor, action_mask: Tensor) -> Tensor:
+    def edge_scores(self, nodes: Tensor, graphs: GraphBatch, context: Tensor) -> Tensor:
         """[G, E + 1] edge-head scores of the allowed choices (−inf elsewhere).
 
-        The head's first layer on [embedding ‖ context] is split as W_e·embedding + W_c·context:
-        the context part once per graph, the edge part only on the `action_mask` [G, E + 1]
-        rows (the unprocessed real edges; on average a third of the padded slots).
+        The head's first layer on [h_p ‖ h_q ‖ a_pq ‖ symlog r_pq ‖ context] (the rows of
+        `edge_embeddings` and the memory context) is split into its blocks: W_p·h and W_q·h once
+        per vertex, W_c·context once per graph, and only the allowed rows (graphs.action_mask:
+        the unprocessed real edges; on average a third of the padded slots) gather and add them.
 
         Args:
-            embeddings: [G, E + 1, 2d + d_e + 3] (encoder.edge_embeddings).
-            context: [G, H] the memory's output.
+            nodes: [G, V, d] node embeddings; context: [G, H] the memory's output.
         """
         first, last = self.edge_head[0], self.edge_head[2]
-        width = embeddings.shape[-1]
-        allowed = action_mask.reshape(-1).nonzero().squeeze(-1)
-        per_graph = F.linear(context, first.weight[:, width:], first.bias)  # [G, hidden]
-        rows = embeddings.reshape(-1, width).index_select(0, allowed)
-        graph_of = torch.div(allowed, action_mask.shape[-1], rounding_mode="floor")
-        hidden = torch.relu(F.linear(rows, first.weight[:, :width]) + per_graph[graph_of])
-        scores = torch.full_like(action_mask, float("-inf"), dtype=embeddings.dtype)
+        count, vertices, width = nodes.shape
+        mask = graphs.action_mask
+        allowed = mask.reshape(-1).nonzero().squeeze(-1)
+        graph_of = torch.div(allowed, mask.shape[-1], rounding_mode="floor")
+        slot = allowed - graph_of * mask.shape[-1]
+        edges = graphs.edge_index.shape[-1]
+        real = (slot < edges).to(nodes.dtype).unsqueeze(-1)  # the no-op row E has no edge part
+        flat_slot = graph_of * edges + slot.clamp(max=edges - 1)
+        weight = first.weight
+        context_block = weight[:, 2 * width + graphs.edge_attr.shape[-1] + RESIDUAL_FEATURES :]
+        hidden = F.linear(context, context_block, first.bias).index_select(0, graph_of)
+        flat_nodes = nodes.reshape(count * vertices, width)
+        local = graphs.edge_index.clamp(0, vertices - 1)
+        edge_part = 0.0
+        for row in (0, 1):  # tail, head
+            ends = local[:, row].reshape(-1).index_select(0, flat_slot)
+            block = weight[:, row * width : (row + 1) * width]
+            edge_part = edge_part + F.linear(flat_nodes, block).index_select(
+                0, graph_of * vertices + ends
+            )
+        features = torch.cat([graphs.edge_attr, symlog(graphs.residuals.to(nodes.dtype))], -1)
+        rows = features.reshape(-1, features.shape[-1]).index_select(0, flat_slot)
+        edge_part = edge_part + F.linear(rows, weight[:, 2 * width : 2 * width + rows.shape[-1]])
+        hidden = torch.relu(hidden + real * edge_part)
+        scores = torch.full_like(mask, float("-inf"), dtype=nodes.dtype)
         return scores.view(-1).index_copy(0, allowed, last(hidden).squeeze(-1)).view_as(scores)
 
     def _choose_edge(self, log_probs: Tensor, deterministic: bool) -> tuple[Tensor, Tensor]:

@@ -35,8 +35,8 @@ from agents.encoder import (
     GraphBatch,
     GraphEncoder,
     chosen_base,
+    chosen_edge_embedding,
     edge_embedding_width,
-    edge_embeddings,
     predicted_gain,
     symlog,
 )
@@ -122,9 +122,8 @@ class CentralCritic(nn.Module):
             ([B, n, 2] Q-values, the critic encoder's output for its gate penalty).
         """
         encoding = self.encoder(graphs, deterministic)
-        embeddings = edge_embeddings(encoding.nodes, graphs)
-        weights = edge_weights.to(embeddings.dtype)
-        chosen = torch.einsum("ge,ged->gd", weights, embeddings)
+        weights = edge_weights.to(encoding.nodes.dtype)
+        chosen = chosen_edge_embedding(encoding.nodes, graphs, weights)
         extra = []
         if self.base_features:  # what the environment executes: δ + Δ_GN, clipped
             step, model = chosen_base(graphs.base_step, graphs.base_model, weights)

@@ -413,6 +413,25 @@ def edge_embeddings(nodes: Tensor, graphs: GraphBatch) -> Tensor:
     return torch.cat([embeddings, torch.zeros_like(embeddings[:, :1])], dim=1)
 
 
+def chosen_edge_embedding(nodes: Tensor, graphs: GraphBatch, weights: Tensor) -> Tensor:
+    """[G, 2d + d_e + 3] Σ_e w_e · `edge_embeddings`(nodes, graphs)[:, e] for the choice weights
+    `weights` [G, E + 1] (one-hot or straight-through; the no-op row E is zeros), without
+    building the [G, E + 1, 2d + d_e + 3] embeddings: the weights are summed onto each edge's
+    tail and head vertex and applied to the node embeddings by one batched product."""
+    count, vertices, _ = nodes.shape
+    edge_weights = weights[:, :-1].to(nodes.dtype)  # [G, E]
+    local = graphs.edge_index.clamp(0, vertices - 1)
+    ends = []
+    for row in (0, 1):  # tail, head
+        at_vertex = edge_weights.new_zeros(count, vertices).scatter_add(
+            1, local[:, row], edge_weights
+        )
+        ends.append(torch.bmm(at_vertex.unsqueeze(1), nodes).squeeze(1))
+    attr = torch.einsum("ge,ged->gd", edge_weights, graphs.edge_attr.to(nodes.dtype))
+    residual = torch.einsum("ge,ged->gd", edge_weights, symlog(graphs.residuals.to(nodes.dtype)))
+    return torch.cat([*ends, attr, residual], dim=-1)
+
+
 class Memory(nn.Module):
     """K stacked GRU cells, refreshed once per decision step (paper §III-C, "memory").
 

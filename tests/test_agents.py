@@ -19,6 +19,7 @@ from agents.encoder import (
     EdgeConditionedConv,
     GraphBatch,
     GraphEncoder,
+    chosen_edge_embedding,
     edge_embeddings,
     symlog,
 )
@@ -639,8 +640,14 @@ def test_the_packed_encoder_and_split_edge_head_equal_the_dense_computation() ->
         context = torch.randn(graphs.num_graphs, actor.memory.hidden)
         features = torch.cat([embeddings, context[:, None].expand(-1, embeddings.shape[1], -1)], -1)
         dense = masked_log_softmax(actor.edge_head(features).squeeze(-1), graphs.action_mask)
-        split = masked_log_softmax(
-            actor.edge_scores(embeddings, context, graphs.action_mask), graphs.action_mask
+        split = masked_log_softmax(actor.edge_scores(nodes, graphs, context), graphs.action_mask)
+        weights = torch.softmax(torch.randn(graphs.num_graphs, embeddings.shape[1]), -1)
+        weights = weights * graphs.action_mask
+        torch.testing.assert_close(
+            chosen_edge_embedding(nodes, graphs, weights),
+            torch.einsum("ge,ged->gd", weights, embeddings),
+            rtol=1e-5,
+            atol=1e-5,
         )
     assert torch.equal(torch.isfinite(dense), graphs.action_mask)
     torch.testing.assert_close(split, dense, rtol=1e-5, atol=1e-5)
