@@ -26,8 +26,6 @@ import torch
 from popbench import objective
 from popbench.reconcile import reconcile
 
-TEAM_REWARDS = ("none", "consensus", "consensus+shaping")
-
 
 def consensus_objective(problem, local_poses: list[np.ndarray]) -> float:
     """F (eq. 1) of the default consensus of ``local_poses`` (one ``(n_r, 3)`` array per robot,

@@ -13,7 +13,7 @@ from typing import Annotated, Any
 
 import typer
 
-from popbench.choices import PARTITIONS
+from popbench.choices import OBJECTIVES, PARTITIONS
 from popbench.cli.options import CommandThreads
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness import defaults
@@ -45,7 +45,6 @@ def build_problem(source: str, robots: int, partition: str, seed: int, init: str
 
 
 SET_BY_CLI = {"init": "--init", "objective": "--objective"}  # set from the command's own flags
-OBJECTIVES = ("chi2", "F")
 # Largest per-edge anisotropy (popbench.objective.anisotropy: how unevenly F weighs residuals
 # against the full information, 1 = not at all) below which F and chi2 are the same problem;
 # the registered files are either at 1 (m3500, city10k, w10000) or far above (≥ 3e3 at most).

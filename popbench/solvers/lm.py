@@ -44,6 +44,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from popbench import objective, se2
+from popbench.choices import OBJECTIVES
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
@@ -53,7 +54,6 @@ from popbench.sparse import nested_dissection, spd_lu
 from popbench.status import Status
 
 ROTATION_COSTS = ("geodesic", "chordal")
-OBJECTIVES = ("F", "chi2")  # what ``lm`` and ``gnc`` minimise (docs/solve.md)
 
 _INITIAL_DAMPING = 1e-8
 _SHRINK_FLOOR = 0.1

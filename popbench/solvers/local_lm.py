@@ -16,6 +16,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from popbench import se2
+from popbench.choices import OBJECTIVES
 from popbench.distributed import DistributedProblem, LocalGraph
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
@@ -26,7 +27,7 @@ from popbench.reconcile import (
     check_consensus,
     reconcile,
 )
-from popbench.solvers.lm import OBJECTIVES, solve_graph
+from popbench.solvers.lm import solve_graph
 from popbench.status import measure
 
 LOCAL_ITERATIONS = 100
