@@ -70,9 +70,9 @@ from envs.geometry import _gather_rows, _scatter_rows, between, compose, residua
 from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
 from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
 from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
-from envs.team import TEAM_REWARDS, TeamReward
+from envs.team import TeamReward
 from envs.tree import pack_trees, place_separators
-from popbench.choices import STEP_RULES
+from popbench.choices import STEP_RULES, TEAM_REWARDS
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs
