@@ -123,69 +123,13 @@ class PGOCore:
             unprocessed edge, or the no-op when none is left).
         device: torch device of every tensor.
         dtype: floating dtype of the pose state (observations are float32).
-        correction: ``"pose"`` or ``"subtree"`` (below).
-        observation: ``"paper"`` or ``"invariant"``.
-        action_scale: ``"metric"`` or ``"whitened"``.
+        correction, observation, action_scale, base, step_rule, team_reward: the modes
+            (values and what each does: docs/environment.md, "Options beside the paper's").
         place_separators: place the separator copies at each episode start (default: in the
             subtree mode only).
-        base: ``"none"`` or ``"gauss-newton"``.
         terminal_bonus: add the terminal ``log`` ratio on the episode's last step (the
             paper's reward); without it the per-step rewards alone, which already telescope to
             the episode's reduction, and which a critic can read off the state.
-        step_rule: ``"clip"``, ``"line-search"``, ``"nonmonotone"`` or ``"search-with-clip"``
-            (below).
-        team_reward: ``"none"``, ``"consensus"`` or ``"consensus+shaping"`` (:mod:`envs.team`:
-            the drop in F after the consensus, paid to every robot at the episode's end).
-
-    The modes:
-
-    Correction modes (``correction=``; :mod:`envs.tree` for the tree)
-        ``"pose"`` (default, the paper's literal reading): eq. C above, only ``q`` moves.
-        ``"subtree"``: the endpoint farther from the root in the agent's spanning tree (the *mover*,
-        :attr:`envs.tree.SpanningTree.mover`; the head unless the head is an ancestor of the tail)
-        is placed so that the edge's relative pose changes by exactly ``Δ`` and moves rigidly with
-        its whole subtree; every edge inside the subtree or outside it keeps its relative pose, only
-        the edges that cross the subtree's boundary change (and only they are refreshed). On a tree
-        edge that leaves every other tree edge's relative pose unchanged; on a loop closure the
-        mover's own tree edge to its parent changes with it. With the
-        subtree mode the separator copies are placed from their owned neighbours at every episode
-        start (:func:`envs.tree.place_separators`; ``place_separators=`` overrides).
-
-    Observation modes (``observation=``)
-        ``"paper"``: node poses in the frame of the agent's first owned pose. ``"invariant"``:
-        node poses relative to their tree parent (the root: the identity), so that, with the
-        residuals, the whole observation is invariant to a rigid motion of any subtree except
-        on the moved subtree's root and on the edges that cross its boundary.
-
-    Action scale (``action_scale=``)
-        ``"metric"``: ``Δ`` in metres / radians. ``"whitened"``: ``Δ`` in units of the chosen edge's
-        own standard deviation, ``Δ_metric = Λ^−½ Δ`` (:func:`envs.observation.whitening`), clipped
-        to ``|Δ| ≤`` :data:`WHITENED_DELTA_MAX` before and to ``Δmax`` after the conversion; the
-        observed residuals become ``Λ^½ r``, the measurement length attribute ``√τ ‖t̃‖`` and the
-        ``log diag Λ`` attributes are centred on the agent's mean, so the actor sees no absolute
-        noise scale.
-
-    Base step (``base=``)
-        ``"none"``: the action's ``Δ`` is the correction. ``"gauss-newton"``: a residual action —
-        the environment first computes one Gauss–Newton step on the chosen edge (the Δ of
-        :class:`envs.sweep.GaussNewtonSweep`, from the edges crossing the moved subtree's boundary)
-        and executes ``Δ_GN + Δ`` (then the same clipping), so a zero action is that step; in the
-        whitened scale ``Δ`` is in units of the chosen edge's σ.
-
-    Step rule (``step_rule=``; docs/environment.md, "The step rule")
-        ``"clip"`` (default, the paper's bounded correction): the executed ``Δ`` is clipped as
-        above and the base step shortened to fit the same bounds. ``"line-search"``: nothing is
-        clipped (the base step is the full Gauss–Newton step; a trained actor's ``Δ`` keeps the
-        bound of its own output); the core executes ``α (Δ_GN + Δ)`` with the scale
-        ``α ∈`` :data:`envs.correction.LINE_SEARCH_SCALES` (0 included) that lowers the agent's
-        local F the most (:func:`envs.correction.candidate_changes`, exact over the edges the move
-        changes), so no step raises an agent's local F. ``"nonmonotone"``: as the line search,
-        but the largest α whose local F stays at or below the largest of the agent's last
-        :data:`envs.correction.NONMONOTONE_WINDOW` values (Grippo et al. 1986): a step may
-        raise F for a while; no episode ends above its start. ``"search-with-clip"``: the line
-        search with one more candidate, the step the ``"clip"`` rule would execute, so each step
-        lowers F at least as much as either rule's. The observed base step stays the clipped one
-        in every rule (what the committed actors were trained on).
     """
 
     def __init__(
