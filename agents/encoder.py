@@ -11,8 +11,8 @@ with a direction flag appended to a_pq so that φ_edge can tell them apart (othe
 would only ever flow backwards along a trajectory). The gate is one scalar z_e per pose-graph edge,
 computed from the mean of the two directed messages, and it masks both (eq. mask).
 
-Edge-attribute layout (what envs/ produces): kind one-hot (4, columns 0–3 in EdgeKind order),
-log-information diagonal (3, columns 4–6), timestep gap, ‖t̃‖, sin θ̃, cos θ̃.
+Edge-attribute layout: envs.features.EDGE (kind one-hot, log-information diagonal, timestep gap,
+‖t̃‖, sin θ̃, cos θ̃), declared once there.
 """
 
 from __future__ import annotations
@@ -25,10 +25,11 @@ from torch import Tensor, nn
 from torch_geometric.nn import MessagePassing
 
 from agents.config import ModelConfig
-from popbench.graph import EdgeKind
+from envs.features import EDGE_COLUMN
 
-LOG_INFO_COLUMNS = slice(4, 7)
-INTER_LOOP_COLUMN = int(EdgeKind.INTER_LOOP)
+# the edge-feature columns the gate reads, from the observation's declaration (envs.features)
+LOG_INFO_COLUMNS = slice(EDGE_COLUMN["log_info_x"], EDGE_COLUMN["log_info_theta"] + 1)
+INTER_LOOP_COLUMN = EDGE_COLUMN["inter_loop"]
 HARD_CONCRETE_STRETCH = (-0.1, 1.1)  # (a, b) of eq. minmax
 RESIDUAL_FEATURES = 3  # symlog(r) of an edge in its embedding (edge_embeddings)
 
