@@ -27,7 +27,6 @@ from __future__ import annotations
 import math
 import warnings
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -46,6 +45,7 @@ from popbench.io_format import (
     FORMAT_OF_TAG,
     FORMATS,
     MAX_VERTEX_ID,
+    ScannedLines,
     information_matrices,
 )
 from popbench.io_limits import (
@@ -172,23 +172,7 @@ def _refuse_numbers(path: Path, lineno: int, tokens: list[str], tag: str, id_cou
             raise DataFormatError(path, lineno, f"{where} is non-finite ({token!r})")
 
 
-class _Lines(NamedTuple):
-    """The parsed lines of one file, with their 1-based line numbers; ids exact, as written."""
-
-    vertex_ids: np.ndarray  # (V,) uint64
-    vertices: np.ndarray  # (V, 3) x, y, θ
-    vertex_lines: np.ndarray  # (V,)
-    edge_ids: np.ndarray  # (E, 2) uint64 i, j
-    edges: np.ndarray  # (E, 9) dx, dy, dθ, six information numbers
-    edge_lines: np.ndarray  # (E,)
-    equivs: np.ndarray  # (Q, 2) uint64 i, j of the TORO EQUIV lines
-    equiv_lines: np.ndarray  # (Q,)
-    fixes: np.ndarray  # (K,) uint64 ids of the FIX lines (a line may name several)
-    fix_lines: np.ndarray  # (K,)
-    skipped: dict[str, int]  # tag → count of the lines of kinds popbench does not model
-
-
-def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
+def _scan(path: Path, fmt: str, parse_edges: bool = True) -> ScannedLines:
     vertex_tag, edge_tag = FORMATS[fmt]
     # tag → (kind, tokens per line); EQUIV is a TORO tag only.
     kinds = {vertex_tag: ("vertex", 5), edge_tag: ("edge", 12)}
@@ -241,7 +225,7 @@ def _scan(path: Path, fmt: str, parse_edges: bool = True) -> _Lines:
     def where(kind: str) -> np.ndarray:
         return np.asarray(line_numbers[kind], dtype=np.int64)
 
-    return _Lines(
+    return ScannedLines(
         exact("vertex", 1)[:, 0],
         real("vertex", 3),
         where("vertex"),
@@ -264,7 +248,7 @@ def _id_range(ids: np.ndarray) -> str:
     return f"{ids.size} ids from {first} to {last}"
 
 
-def _vertex_table(path: Path, lines: _Lines) -> tuple[np.ndarray, np.ndarray | None]:
+def _vertex_table(path: Path, lines: ScannedLines) -> tuple[np.ndarray, np.ndarray | None]:
     """The graph's vertex ids, ascending ``(N,)`` uint64, and their ``(N, 3)`` poses: those of
     the VERTEX lines (an id repeated is refused), or, in a file without VERTEX lines, every id
     that an edge names (poses None). Internal index ``k`` is the vertex with the ``k``-th
@@ -298,7 +282,7 @@ def _indices(
     return slots.astype(np.int64)
 
 
-def _equivalence_map(path: Path, lines: _Lines, ids: np.ndarray) -> np.ndarray | None:
+def _equivalence_map(path: Path, lines: ScannedLines, ids: np.ndarray) -> np.ndarray | None:
     """``(N,)`` new internal index of each vertex after merging the EQUIV classes (each class
     kept as its smallest id, survivors renumbered 0 … in ascending id order), or ``None`` when
     the file has no EQUIV lines.
@@ -423,7 +407,7 @@ def _warn_skipped(path: Path, skipped: dict[str, int], fmt: str) -> None:
 
 
 def _check_connected(
-    path: Path, lines: _Lines, ids: np.ndarray, tails: np.ndarray, heads: np.ndarray
+    path: Path, lines: ScannedLines, ids: np.ndarray, tails: np.ndarray, heads: np.ndarray
 ) -> None:
     """Every pose must be joined to the vertex of the smallest id (internal index 0) by a path
     of edges (one gauge fixes the whole graph; a pose in another component is undetermined and

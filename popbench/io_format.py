@@ -9,6 +9,8 @@ the measurement frame, so the cost-preserving conversion is ``Λ_g2o = Bᵀ Λ_T
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from popbench import se2
@@ -60,3 +62,20 @@ def information_matrices(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.
         b = toro_frame(theta)
         information = np.swapaxes(b, 1, 2) @ information @ b
     return information
+
+
+class ScannedLines(NamedTuple):
+    """The parsed lines of one file (what :mod:`popbench.io` scans and :mod:`popbench.io_limits`
+    checks), with their 1-based line numbers; ids exact, as written."""
+
+    vertex_ids: np.ndarray  # (V,) uint64
+    vertices: np.ndarray  # (V, 3) x, y, θ
+    vertex_lines: np.ndarray  # (V,)
+    edge_ids: np.ndarray  # (E, 2) uint64 i, j
+    edges: np.ndarray  # (E, 9) dx, dy, dθ, six information numbers
+    edge_lines: np.ndarray  # (E,)
+    equivs: np.ndarray  # (Q, 2) uint64 i, j of the TORO EQUIV lines
+    equiv_lines: np.ndarray  # (Q,)
+    fixes: np.ndarray  # (K,) uint64 ids of the FIX lines (a line may name several)
+    fix_lines: np.ndarray  # (K,)
+    skipped: dict[str, int]  # tag → count of the lines of kinds popbench does not model

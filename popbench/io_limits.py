@@ -7,14 +7,11 @@ factorisation; docs/solve.md ("Refused input") has the measurements behind each 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from popbench.errors import DataFormatError
-
-if TYPE_CHECKING:
-    from popbench.io import _Lines
+from popbench.io_format import ScannedLines
 
 # Magnitudes the solvers are known to handle (docs/solve.md, "Refused input"): beyond them a file is
 # refused at load with its line, not left to fail inside a factorisation.
@@ -23,7 +20,7 @@ INFORMATION_RANGE = (1e-100, 1e100)  # every eigenvalue of every information mat
 INFORMATION_SPREAD = 1e15  # largest / smallest eigenvalue over the whole graph
 
 
-def check_coordinates(path: Path, lines: _Lines) -> None:
+def check_coordinates(path: Path, lines: ScannedLines) -> None:
     """Every translation (VERTEX x, y; edge dx, dy) within ``±COORDINATE_LIMIT`` metres."""
     for rows, columns, numbers, what in (
         (lines.vertices, [0, 1], lines.vertex_lines, "pose coordinate"),
