@@ -45,7 +45,7 @@ def trajectories_command(
 @app.command(
     "curves",
     epilog="Examples:\n\n"
-    "  popbench plot curves agents/checkpoints/actor-V2-n7.metrics.csv\n\n"
+    "  popbench plot curves results/checkpoint-training/actor-V2-n7.metrics.csv\n\n"
     "  popbench plot curves runs/a/metrics.csv runs/b/metrics.csv --out results/figures/ab\n\n"
     "  popbench plot curves runs/cmp/* --problems 25 --out results/algorithms/curves "
     "--reference results/heldout-residual-s0,results/heldout-residual-s1",
