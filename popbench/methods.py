@@ -42,7 +42,7 @@ import numpy as np
 
 from popbench import objective, se2
 from popbench.errors import PopbenchError, ValueRangeError
-from popbench.status import Status, measure, settled
+from popbench.status import NeverWorse, Status, measure, settled
 
 
 @dataclasses.dataclass(frozen=True)
@@ -431,14 +431,15 @@ def keep_better(problem: Any, result: Result) -> Result:
     on the cost it minimised (``result.status``) for a robust method or one minimising chi2,
     else on F (eq. 1; the F_chordal family is judged on F, its target).
 
-    ``extras["never_worse"]`` says which was returned: ``"method"``, ``"start"`` (then
-    ``extras["F_method"]`` is the estimate's F, ``extras["never_worse_cost"]`` the cost compared,
-    and the last ``history`` entry the start's cost in ``history_objective`` units; times,
-    iterations, the inlier mask and ``status`` stay the method's: where it stopped), or ``"not
-    applied"`` on a problem with injected outliers (``problem.outlier_mask`` flags some edge)."""
+    ``extras["never_worse"]`` (a :class:`~popbench.status.NeverWorse`) says which was returned:
+    ``METHOD``, ``START`` (then ``extras["F_method"]`` is the estimate's F,
+    ``extras["never_worse_cost"]`` the cost compared, and the last ``history`` entry the start's
+    cost in ``history_objective`` units; times, iterations, the inlier mask and ``status`` stay
+    the method's: where it stopped), or ``NOT_APPLIED`` on a problem with injected outliers
+    (``problem.outlier_mask`` flags some edge)."""
     mask = getattr(problem, "outlier_mask", None)
     if mask is not None and bool(np.any(mask)):
-        result.extras["never_worse"] = "not applied"
+        result.extras["never_worse"] = NeverWorse.NOT_APPLIED
         return result
     start = problem.graph.poses
     costs = objective.evaluate(problem.graph, start)
@@ -449,14 +450,14 @@ def keep_better(problem: Any, result: Result) -> Result:
     else:
         worse, compared = result.F > costs.F, "F"
     if not worse:
-        result.extras["never_worse"] = "method"
+        result.extras["never_worse"] = NeverWorse.METHOD
         return result
     history = np.array(result.history, dtype=float, copy=True)
     if history.size:
         history[-1] = getattr(costs, result.history_objective)
     extras = {
         **result.extras,
-        "never_worse": "start",
+        "never_worse": NeverWorse.START,
         "F_method": result.F,
         "never_worse_cost": compared,
     }

@@ -14,6 +14,7 @@ returned poses, over the free poses (every pose but the fixed ones: vertex 0, or
 from __future__ import annotations
 
 import dataclasses
+import enum
 
 import numpy as np
 
@@ -24,6 +25,15 @@ from popbench.graph import PoseGraph
 # "settled" (GTSAM's default relativeErrorTol is 1e-5; one round of a first-order method moves
 # less than an LM step, hence the tighter bound).
 SETTLED_TOLERANCE = 1e-6
+
+
+class NeverWorse(enum.StrEnum):
+    """What the never-worse rule (:func:`popbench.methods.keep_better`) returned, in
+    ``Result.extras["never_worse"]``: a ``str`` (it compares and serialises as its value)."""
+
+    METHOD = "method"  # the method's estimate: not worse than the start
+    START = "start"  # the problem's start: the estimate was worse on the cost compared
+    NOT_APPLIED = "not applied"  # a problem with injected outliers: the estimate, unjudged
 
 
 @dataclasses.dataclass(frozen=True)

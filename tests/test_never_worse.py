@@ -11,6 +11,8 @@ network).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -18,6 +20,7 @@ from conftest import require_dataset
 
 from popbench import methods, objective
 from popbench.datasets import DATASETS
+from popbench.status import NeverWorse
 from popbench.synthetic import make_problem
 
 FREIBURG = ("frh", "fr079")  # registered; not in the team's data folder (CI skips them)
@@ -72,13 +75,14 @@ def test_the_registry_returns_the_start_for_an_estimate_above_it(away: str) -> N
     solve = methods.get_method(away)
     assert methods.method_options(away) == ("scale",)  # the wrapper keeps the signature
     result = solve(problem, methods.Budget(1))
-    assert result.extras["never_worse"] == "start"
+    assert result.extras["never_worse"] is NeverWorse.START
+    assert json.loads(json.dumps(result.extras["never_worse"])) == "start"  # serialised as written
     assert result.extras["F_method"] > f_init
     np.testing.assert_array_equal(result.poses, start)
     assert result.F == pytest.approx(f_init) and result.history[-1] == pytest.approx(f_init)
     assert (result.wall_s, result.parallel_s, result.iterations) == (1.0, 0.5, 1)  # the method's
     kept = solve(problem, methods.Budget(1), scale=0.0)  # F equal to the start's: kept
-    assert kept.extras["never_worse"] == "method"
+    assert kept.extras["never_worse"] is NeverWorse.METHOD
     assert "F_method" not in kept.extras
 
 
@@ -87,7 +91,7 @@ def test_the_rule_is_not_applied_with_injected_outliers(away: str) -> None:
 
     problem = with_outliers(make_problem(robots=3, poses_per_robot=20, seed=1), 0.2, seed=1)
     result = methods.get_method(away)(problem, methods.Budget(1))
-    assert result.extras["never_worse"] == "not applied"
+    assert result.extras["never_worse"] is NeverWorse.NOT_APPLIED
     assert result.F > objective.objective(problem.graph)
 
 

@@ -17,6 +17,7 @@ from popbench.choices import OBJECTIVES, PARTITIONS
 from popbench.cli.options import CommandThreads
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness import defaults
+from popbench.status import NeverWorse
 
 
 def parse_method_options(pairs: list[str]) -> dict[str, Any]:
@@ -337,7 +338,7 @@ def never_worse_sentence(record: dict[str, Any]) -> str | None:
     """In words, when the never-worse rule returned the start instead of the method's answer
     (docs/never_worse.md); None when it kept the answer."""
     extras = record["extras"]
-    if extras.get("never_worse") != "start":
+    if extras.get("never_worse") != NeverWorse.START:
         return None
     compared = extras.get("never_worse_cost", "F")
     if compared == "F":
