@@ -17,7 +17,6 @@ from popbench.choices import OBJECTIVES, PARTITIONS
 from popbench.cli.options import CommandThreads
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.harness import defaults
-from popbench.status import NeverWorse
 
 
 def parse_method_options(pairs: list[str]) -> dict[str, Any]:
@@ -337,6 +336,8 @@ def write_outputs(
 def never_worse_sentence(record: dict[str, Any]) -> str | None:
     """In words, when the never-worse rule returned the start instead of the method's answer
     (docs/never_worse.md); None when it kept the answer."""
+    from popbench.status import NeverWorse
+
     extras = record["extras"]
     if extras.get("never_worse") != NeverWorse.START:
         return None
