@@ -29,11 +29,11 @@ def _type_only(tree: ast.AST) -> set[int]:
     }
 
 
-def imported_modules(path: Path) -> set[str]:
-    """The dotted modules `path` imports outside `if TYPE_CHECKING:` blocks (`from a import b`
-    counts as `a` and `a.b`)."""
+def imported_modules(path: Path, types: bool = False) -> set[str]:
+    """The dotted modules `path` imports outside `if TYPE_CHECKING:` blocks, or everywhere with
+    `types` (`from a import b` counts as `a` and `a.b`)."""
     tree = ast.parse(path.read_text())
-    type_only = _type_only(tree)
+    type_only = set() if types else _type_only(tree)
     names = set()
     for node in ast.walk(tree):
         if id(node) in type_only:
@@ -73,9 +73,8 @@ def test_the_dynamics_import_no_policy() -> None:
         assert not GRAPH[module] & POLICIES, f"envs.{module} imports {GRAPH[module] & POLICIES}"
 
 
-@pytest.mark.parametrize("package", ["envs", "agents"])
-def test_no_import_circle_at_run_time(package: str) -> None:
-    graph = import_graph(package)
+def on_circles(graph: dict[str, set[str]]) -> list[str]:
+    """The modules of `graph` (module -> the modules it imports) that reach themselves."""
 
     def reach(start: str) -> set[str]:
         seen, todo = set(), [start]
@@ -85,7 +84,12 @@ def test_no_import_circle_at_run_time(package: str) -> None:
                 todo.append(name)
         return seen
 
-    circles = sorted(module for module in graph if module in reach(module))
+    return sorted(module for module in graph if module in reach(module))
+
+
+@pytest.mark.parametrize("package", ["envs", "agents"])
+def test_no_import_circle_at_run_time(package: str) -> None:
+    circles = on_circles(import_graph(package))
     assert not circles, f"{package} modules on an import circle: {circles}"
 
 
@@ -101,15 +105,8 @@ def module_graph(package: str, type_only: bool) -> dict[str, set[str]]:
     paths = {_dotted(path): path for path in (ROOT / package).rglob("*.py")}
     graph = {}
     for module, path in paths.items():
-        names = imported_modules(path)
-        if type_only:
-            names |= {
-                node.module
-                for node in ast.walk(ast.parse(path.read_text()))
-                if isinstance(node, ast.ImportFrom) and node.module and node.level == 0
-            }
         targets = set()
-        for name in names:
+        for name in imported_modules(path, types=type_only):
             parts = name.split(".")
             found = next(
                 (
@@ -125,24 +122,12 @@ def module_graph(package: str, type_only: bool) -> dict[str, set[str]]:
     return graph
 
 
-def _on_circles(graph: dict[str, set[str]]) -> list[str]:
-    def reach(start: str) -> set[str]:
-        seen, todo = set(), [start]
-        while todo:
-            for name in graph.get(todo.pop(), set()) - seen:
-                seen.add(name)
-                todo.append(name)
-        return seen
-
-    return sorted(module for module in graph if module in reach(module))
-
-
 @pytest.mark.parametrize("package", ["popbench", "baselines"])
 def test_no_import_circle_in_the_library_even_for_types(package: str) -> None:
     """No circle of files in popbench/ (its sub-packages included) or baselines/, counting the
     imports made for types only: a circle there is a design one (a private name reached back
     into), not only a run-time hazard."""
-    assert not _on_circles(module_graph(package, type_only=True))
+    assert not on_circles(module_graph(package, type_only=True))
 
 
 def test_the_library_checker_sees_imports() -> None:
@@ -150,7 +135,7 @@ def test_the_library_checker_sees_imports() -> None:
     assert "popbench.io_format" in graph["popbench.io_limits"]
     assert "popbench.solvers.chordal" in graph["popbench.initial"]  # inside a function
     assert "popbench.distributed" in graph["popbench.initial"]  # under TYPE_CHECKING
-    assert _on_circles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == ["a", "b"]
+    assert on_circles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == ["a", "b"]
 
 
 def test_the_checker_sees_imports() -> None:  # the tests above cannot pass vacuously
