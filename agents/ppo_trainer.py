@@ -7,10 +7,11 @@ distribution in agents.hybrid_distribution), a `ValueOperator` (agents.value: ce
 `MAPPO` and `IPPO` are its agents.learner.Learner records: agents.trainer.train runs them with the
 collector, checkpoints, metrics, held-out evaluation and resuming it runs GA-SAC with.
 
-Per collected batch [num_envs, T] (`PPOBatches.learn`): rewards scaled by c (1 / std of the first
-batch's rewards, kept for the run), the root done flags expanded to the robots, V(s) and V(s')
-by the value function, GAE advantages and value targets (per robot, normalised over the batch),
-then `epochs` passes of shuffled minibatches of `minibatch_size` joint transitions.
+Per collected batch [num_envs, T] (`PPOBatches.learn`): rewards scaled by c (1 / std of the
+first batch's rewards that vary, kept for the run; agents.reward_scale), the root done flags
+expanded to the robots, V(s) and V(s') by the value function, GAE advantages and value targets
+(per robot, normalised over the batch), then `epochs` passes of shuffled minibatches of
+`minibatch_size` joint transitions.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from agents.config import TrainConfig
 from agents.learner import Learner
 from agents.metrics import PPO_METRIC_FIELDS
 from agents.ppo_actor import ACTION_KEY, SAMPLE_LOG_PROB_KEY, PPOPolicy
+from agents.reward_scale import SCALE_UNSET, applied, reward_scale
 from agents.session import training_env
 from agents.value import VALUE_KEY, TeamValue, ValueOperator
 
@@ -62,7 +64,7 @@ class PPOSession:
     dims: dict[str, int]
     frames: int = 0
     updates: int = 0
-    reward_scale: float = 0.0  # c, set on the first batch (0: not yet)
+    reward_scale: float = SCALE_UNSET  # c, set on the first batch whose rewards vary
 
 
 def build_ppo_session(config: TrainConfig, central_value: bool) -> PPOSession:
@@ -132,9 +134,9 @@ class PPOBatches:
         advantages and value targets at the KEYS (in place)."""
         session, ppo = self.session, self.session.config.ppo
         reward = data.get(("next", AGENTS, "reward"))  # [B, T, n, 1]
-        if session.reward_scale == 0.0:
-            session.reward_scale = 1.0 / float(reward.float().std().clamp(min=1e-6))
-        data.set(("next",) + KEYS["reward"], reward * session.reward_scale)
+        if session.reward_scale == SCALE_UNSET:
+            session.reward_scale = reward_scale(reward)
+        data.set(("next",) + KEYS["reward"], reward * applied(session.reward_scale))
         for name in ("done", "terminated"):
             flag = data.get(("next", name)).unsqueeze(-2).expand_as(reward)  # [B, T, 1] → robots
             data.set(("next",) + KEYS[name], flag.clone())

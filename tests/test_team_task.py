@@ -127,3 +127,39 @@ def test_a_team_run_trains_and_is_labelled_by_its_reward(tmp_path) -> None:
     assert result.frames == 32 and result.updates > 0
     identity = snapshot_identity(tmp_path / "checkpoint.pt")
     assert identity["algorithm"] == "mappo-team"
+
+
+def test_a_team_run_scales_its_rewards_from_a_batch_where_they_vary(tmp_path) -> None:
+    """The first batches of the team task pay only 0 (no episode has ended): they must not set
+    the reward scale (1 / std of zeros was 10⁶, and the critic's targets 10⁶ × the returns)."""
+    import csv
+
+    from agents.reward_scale import SCALE_UNSET, reward_scale
+
+    assert reward_scale(torch.zeros(4, 3, 1)) == SCALE_UNSET
+    assert reward_scale(torch.tensor([0.0, 0.0, 0.5, 0.0])) == pytest.approx(4.0)
+    config = with_task(PRESETS["cpu-mappo"], get_task("team"))
+    config = dataclasses.replace(
+        config,
+        experiment=dataclasses.replace(
+            config.experiment,
+            robots=3,
+            poses_per_robot=12,
+            num_envs=2,
+            frames=64,
+            frames_per_batch=8,
+            eval_interval=10_000,
+            checkpoint_interval=10_000,
+            progress=False,
+            out_dir=str(tmp_path),
+        ),
+        imitation=dataclasses.replace(config.imitation, episodes=0),
+        ppo=dataclasses.replace(config.ppo, minibatch_size=4, epochs=1),
+    )
+    train(config)
+    with (tmp_path / "metrics.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    scales = [float(row["reward_scale"]) for row in rows]
+    assert scales[0] == SCALE_UNSET  # 4 joint steps of 2 envs: no episode has ended yet
+    assert 0.0 < scales[-1] < 100.0  # set from the first batch with a terminal reward
+    assert all(float(row["loss_critic"]) < 1e4 for row in rows)  # 10⁸–10¹¹ before
