@@ -11,6 +11,8 @@ import dataclasses
 from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
+from envs.modes import PAPER_MODES, TRAJECTORY_MODES, EnvModes
+
 if TYPE_CHECKING:
     from envs.tasks import Task
 
@@ -45,7 +47,7 @@ class ModelConfig:
         base_features: the correction head reads the Gauss–Newton base step of the chosen edge
             and its quadratic model (agents.encoder.base_inputs), and the critic the executed
             correction (δ + Δ_GN, clipped) and its predicted gain; needs an environment with the
-            base step (TaskConfig.base = "gauss-newton"). False: the earlier actors' heads.
+            base step (EnvModes.base = "gauss-newton"). False: the earlier actors' heads.
     """
 
     hidden: int = 128
@@ -205,52 +207,6 @@ class ExperimentConfig:
 
 
 @dataclass(frozen=True)
-class TaskConfig:
-    """The environment the actor acts in (envs.core.PGOCore options; BenchMARL's "task").
-
-    Attributes:
-        correction: "pose" (the paper's literal reading: Δ moves the edge's head) or "subtree"
-            (Δ moves the head with its spanning-tree subtree; docs/environment.md).
-        observation: "paper" (poses in the frame of the first owned pose) or "invariant"
-            (poses relative to their tree parent).
-        action_scale: "metric" (Δ in m, rad) or "whitened" (Δ in units of the edge's own
-            standard deviation, Δmax applied after the conversion back).
-        base: "none" (the actor's Δ is the correction) or "gauss-newton" (a residual policy:
-            the environment adds one Gauss–Newton step on the chosen edge, envs.sweep, and the
-            actor's Δ corrects it).
-        step_rule: "clip" (the executed Δ clipped to the bounds: every committed actor was
-            trained so), "line-search" (unclipped, scaled so that no step raises the robot's
-            local F) or its variants "nonmonotone" and "search-with-clip" (envs.core.PGOCore,
-            docs/environment.md "The step rule").
-        team_reward: "none" (each robot's own reward), "consensus" (the team's terminal
-            reward: the drop in F after the consensus, envs.team) or "consensus+shaping" (both).
-
-    The defaults are the paper's environment, which every checkpoint written before these
-    options existed was trained in (a checkpoint without a "task" entry reads as them).
-    """
-
-    correction: str = "pose"
-    observation: str = "paper"
-    action_scale: str = "metric"
-    base: str = "none"
-    step_rule: str = "clip"
-    team_reward: str = "none"
-
-    def core_options(self) -> dict[str, str]:
-        """The keyword options of envs.core.PGOCore."""
-        return asdict(self)
-
-
-# The paper's environment (and that of every checkpoint without a task entry).
-PAPER_TASK = TaskConfig()
-# The environment of the trajectory-parameterised actors (docs/environment.md has the
-# measurements behind it).
-TRAJECTORY_TASK = TaskConfig(
-    correction="subtree", observation="invariant", action_scale="whitened", base="gauss-newton"
-)
-
-
-@dataclass(frozen=True)
 class ImitationConfig:
     """The imitation phase before GA-SAC (our addition, docs/training.md): DAgger-style
     behaviour cloning of the expert (envs.expert.Expert) on states the learner visits.
@@ -350,7 +306,8 @@ class TrainConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     algorithm: AlgorithmConfig = field(default_factory=AlgorithmConfig)
     experiment: ExperimentConfig = field(default_factory=ExperimentConfig)
-    task: TaskConfig = field(default_factory=TaskConfig)
+    task: EnvModes = PAPER_MODES  # the environment's modes (envs.modes; a checkpoint without
+    # a "task" entry reads as the paper's, which every checkpoint before the options was in)
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     algorithm_name: str = "ga-sac"
@@ -370,7 +327,7 @@ class TrainConfig:
             model=_build(ModelConfig, data.get("model", {})),
             algorithm=_build(AlgorithmConfig, data.get("algorithm", {})),
             experiment=_build(ExperimentConfig, data.get("experiment", {})),
-            task=_build(TaskConfig, data.get("task", {})),
+            task=_build(EnvModes, data.get("task", {})),
             imitation=_build(ImitationConfig, data.get("imitation", {})),
             ppo=_build(PPOConfig, data.get("ppo", {})),
             algorithm_name=data.get("algorithm_name", "ga-sac"),
@@ -383,7 +340,7 @@ def with_task(config: TrainConfig, task: Task) -> TrainConfig:
     noise level, map size and training outliers; the networks and budgets stay ``config``'s."""
     return dataclasses.replace(
         config,
-        task=TaskConfig(**task.core_options()),
+        task=task.modes,
         algorithm=dataclasses.replace(
             config.algorithm,
             reward=task.reward or "localisation",
@@ -498,7 +455,7 @@ CPU_IMITATION = TrainConfig(
     # 4,096 frames give 384 updates after the 1,024-frame warm-up; 128 of them critic-only
     algorithm=dataclasses.replace(CPU_SMALL.algorithm, critic_warmup_updates=128),
     experiment=dataclasses.replace(CPU_SMALL.experiment, frames=4_096),
-    task=TRAJECTORY_TASK,
+    task=TRAJECTORY_MODES,
     imitation=ImitationConfig(episodes=100, num_envs=8, lr=1e-3, beta_decay=0.8),
 )
 # cpu-imitation on problems with injected outliers (docs/training.md): rates

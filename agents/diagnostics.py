@@ -32,9 +32,10 @@ import numpy as np
 import torch
 
 from agents.actor import HybridActor
-from agents.config import ExperimentConfig, TaskConfig
+from agents.config import ExperimentConfig
 from agents.encoder import GraphBatch
 from agents.imitation import make_core
+from envs.modes import EnvModes
 
 PROBE_SEED_OFFSET = 2_000_003  # disjoint from training and from the trainer's evaluation
 
@@ -54,7 +55,7 @@ def _episode(actor: HybridActor, core, expert, zero: bool) -> dict:  # noqa: ANN
         out = actor(graphs, memory, prev_edge, prev_delta, deterministic=True)
         edge = out.edge.view(b, n)
         base = core.base_step(edge).reshape(g, 3).to(torch.float32)
-        added = base if core.base == "gauss-newton" else torch.zeros_like(base)
+        added = base if core.modes.base == "gauss-newton" else torch.zeros_like(base)
         delta = torch.zeros_like(out.delta) if zero else out.delta
         on_tree = torch.gather(core.state.tree_edge.view(g, -1), 1, out.edge[:, None])[:, 0]
         keep = on_tree & (out.edge < e)
@@ -75,7 +76,7 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
 
 def correction_probe(
     actor: HybridActor,
-    task: TaskConfig,
+    task: EnvModes,
     experiment: ExperimentConfig,
     problems: int = 16,
     seed: int = 0,

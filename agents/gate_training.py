@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from agents.actor import HybridActor
-from agents.config import ExperimentConfig, OutlierGateConfig, TaskConfig
+from agents.config import ExperimentConfig, OutlierGateConfig
 from agents.encoder import GraphEncoder
 from agents.loss_terms import gate_supervision_loss
 from agents.outlier_gate import (
@@ -38,6 +38,7 @@ from agents.outlier_gate import (
     reconciled_state,
     state_gate,
 )
+from envs.modes import EnvModes
 from popbench.distributed import DistributedProblem
 
 TRAINING_STREAM, VALIDATION_STREAM = 0x6A7E, 0x6A7F  # SeedSequence keys [seed, k, stream]
@@ -67,7 +68,7 @@ def problem_seed(seed: int, k: int, stream: int) -> int:
 
 def reconciled_states(
     actor: HybridActor,
-    task: TaskConfig,
+    task: EnvModes,
     problems: list[DistributedProblem],
     consensus: str,
     on_problem: Callable[[], None] | None = None,
@@ -95,7 +96,7 @@ def mean_auc(encoder: GraphEncoder, states: list[tuple[DistributedProblem, GateS
 
 def fit_outlier_gate(
     actor: HybridActor,
-    task: TaskConfig,
+    task: EnvModes,
     config: OutlierGateConfig,
     experiment: ExperimentConfig,
     on_problem: Callable[[], None] | None = None,

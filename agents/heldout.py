@@ -31,7 +31,6 @@ import numpy as np
 import torch
 
 from agents.checkpoint import checkpoint_algorithm
-from agents.config import TRAJECTORY_TASK
 from agents.methods import (
     CHECKPOINT_DIR,
     DEFAULT_CHECKPOINT,
@@ -41,7 +40,9 @@ from agents.methods import (
     run_episode,
 )
 from agents.outlier_gate import candidate_auc
+from envs.modes import TRAJECTORY_MODES
 from popbench import objective
+from popbench.choices import TRAINING_STEP_RULE
 from popbench.datasets import file_sha256
 from popbench.distributed import DistributedProblem
 from popbench.metrics import ate
@@ -55,7 +56,7 @@ IMITATION_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7-residual.pt"
 GA_SAC_CHECKPOINT = DEFAULT_CHECKPOINT
 # The environment of the non-learned policy rows: the trajectory task without the base step
 # (each row's Δ is its own).
-POLICY_TASK = dataclasses.replace(TRAJECTORY_TASK, base="none")
+POLICY_TASK = dataclasses.replace(TRAJECTORY_MODES, base="none")
 
 LEARNED_ROWS = ("learned-order", "imitation", "ga-sac")  # the rows that run a checkpoint
 
@@ -90,7 +91,9 @@ def row_label(row: str, checkpoint: str | Path) -> str:
 
 
 def episode(
-    problem: DistributedProblem, policy: Callable[[Any], Policy], step_rule: str = "clip"
+    problem: DistributedProblem,
+    policy: Callable[[Any], Policy],
+    step_rule: str = TRAINING_STEP_RULE,
 ) -> list:
     """The robots' local copies after one episode of the non-learned rows' environment
     (:data:`POLICY_TASK` under ``step_rule``, separators placed) driven by ``policy(core)``, a
@@ -176,7 +179,7 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
 
     if row == "no-op":
         return place_separators(problem)
-    rule = spec.get("step_rule", "clip")
+    rule = spec.get("step_rule", TRAINING_STEP_RULE)
     if row == "random":
         rng = np.random.default_rng(spec["problem_seed"])
         return episode(problem, random_policy(rng), rule)
@@ -257,7 +260,7 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
         }
     learned = spec["row"] in LEARNED_ROWS
     if learned:
-        rule = spec.get("step_rule", "clip")
+        rule = spec.get("step_rule", TRAINING_STEP_RULE)
         run = learned_episode(spec["row"], problem, spec["checkpoint"], rule)
         local = run.local_poses
     else:

@@ -34,9 +34,10 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 
 from agents.actor import HybridActor
-from agents.config import ExperimentConfig, ImitationConfig, TaskConfig, TrainConfig
+from agents.config import ExperimentConfig, ImitationConfig, TrainConfig
 from agents.encoder import GraphBatch
 from agents.loss_terms import actor_imitation_losses, gate_supervision_loss
+from envs.modes import EnvModes
 
 
 @dataclasses.dataclass
@@ -63,7 +64,7 @@ class EpisodeLog:
 
 
 def make_core(  # noqa: ANN201
-    task: TaskConfig, experiment: ExperimentConfig, batch: int, seed: int, first_episode: int = 0
+    task: EnvModes, experiment: ExperimentConfig, batch: int, seed: int, first_episode: int = 0
 ):
     """(core, sampler): a PGOCore with measurement reward over `batch` synthetic problems of the
     experiment's kind (with its training outliers), loaded with episode `first_episode` of its
@@ -87,7 +88,7 @@ def make_core(  # noqa: ANN201
 
 def imitate(
     actor: HybridActor,
-    task: TaskConfig,
+    task: EnvModes,
     experiment: ExperimentConfig,
     config: ImitationConfig,
     on_episode: Callable[[EpisodeLog], None] | None = None,

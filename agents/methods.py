@@ -38,10 +38,10 @@ import torch
 
 from agents.actor import HybridActor
 from agents.checkpoint import load_actor, load_outlier_gate
-from agents.config import PAPER_TASK, TaskConfig
 from agents.encoder import GraphBatch
 from agents.inference import IncrementalPolicy
 from agents.outlier_gate import GATE_THRESHOLD, OutlierGate, holder_minimum, reconciled_gate
+from envs.modes import PAPER_MODES, EnvModes
 from popbench import objective
 from popbench.choices import DEFAULT_STEP_RULE
 from popbench.distributed import DistributedProblem
@@ -105,7 +105,7 @@ class Episode:
 
 
 @lru_cache(maxsize=4)
-def cached_actor(path: str, device: str) -> tuple[HybridActor, TaskConfig]:
+def cached_actor(path: str, device: str) -> tuple[HybridActor, EnvModes]:
     """The actor of a checkpoint file and the environment it was trained in, loaded once per
     process."""
     actor, config = load_actor(path, device)
@@ -124,7 +124,7 @@ def flag_gate(
     episode: Episode,
     poses: np.ndarray,
     checkpoint: str | Path,
-    task: TaskConfig,
+    task: EnvModes,
     device: str = "cpu",
 ) -> tuple[np.ndarray, float]:
     """``(gate, threshold)``: the ``(M,)`` gate prop-v1 flags outliers from (an edge is
@@ -138,7 +138,7 @@ def flag_gate(
     return gate, fitted.threshold
 
 
-def episode_core(actor: HybridActor, problem: DistributedProblem, task: TaskConfig) -> PGOCore:
+def episode_core(actor: HybridActor, problem: DistributedProblem, task: EnvModes) -> PGOCore:
     """The one-problem environment (``B = 1``, reward F) of the actor's `task`, loaded with
     `problem`, in which prop-v1's episode runs (no team reward: the episode's caller runs the
     consensus itself)."""
@@ -157,7 +157,7 @@ def run_episode(
     seconds: float | None = None,
     max_steps: int | None = None,
     on_step: Callable[[int], None] | None = None,
-    task: TaskConfig = PAPER_TASK,
+    task: EnvModes = PAPER_MODES,
     correction: bool = True,
 ) -> Episode:
     """Run the actor for one episode on every robot's local graph (module docstring, step 1);

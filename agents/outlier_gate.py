@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from agents.config import TaskConfig
 from agents.encoder import GraphBatch, GraphEncoder
+from envs.modes import EnvModes
 from popbench.distributed import DistributedProblem
 
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ class GateState:
 
 
 def reconciled_state(
-    problem: DistributedProblem, poses: np.ndarray, task: TaskConfig, core: PGOCore | None = None
+    problem: DistributedProblem, poses: np.ndarray, task: EnvModes, core: PGOCore | None = None
 ) -> GateState:
     """Every robot's local graph with each vertex, owned or a separator copy, at its global
     ``poses`` ``(N, 3)`` value, observed as in the environment ``task``: in ``core`` (prop-v1's
@@ -102,7 +102,7 @@ def state_gate(encoder: GraphEncoder, state: GateState) -> np.ndarray:
 
 def reconciled_gate(
     encoder: GraphEncoder,
-    task: TaskConfig,
+    task: EnvModes,
     problem: DistributedProblem,
     poses: np.ndarray,
     core: PGOCore | None = None,

@@ -63,7 +63,7 @@ def training_env(
 ) -> tuple[Any, TrainConfig, dict[str, int]]:
     """The training env (the experiment's outliers, the algorithm's reward and terminal bonus;
     `labels`: the expert labels the supervised terms read), `config` with the actor's output
-    bound set to the action's (Δmax, or the whitened bound: TaskConfig), and the dimensions
+    bound set to the action's (Δmax, or the whitened bound: EnvModes), and the dimensions
     {"node", "edge": feature widths, "agents": n, "choices": E + 1}."""
     experiment, algorithm = config.experiment, config.algorithm
     training_options: dict[str, Any] = {

@@ -88,10 +88,12 @@ def module_file(name: str) -> str | None:
 def env_option_names() -> tuple[str, ...]:
     """The ``--policy-env`` keys: PGOEnv's and PGOCore's keyword options and the padding."""
     from envs.core import PGOCore
+    from envs.modes import MODE_NAMES
     from envs.torchrl_env import PGOEnv
 
     names = {*inspect.signature(PGOEnv).parameters, *inspect.signature(PGOCore).parameters}
-    return tuple(sorted(names - _FIXED - {"modes"})) + PADDING_OPTIONS
+    names = names - _FIXED - {"modes", "mode_changes"} | set(MODE_NAMES)  # the modes one by one
+    return tuple(sorted(names)) + PADDING_OPTIONS
 
 
 @lru_cache(maxsize=4)

@@ -23,8 +23,8 @@ import time
 import torch
 
 from envs import make_torchrl_env
-from envs.core import ACTION_SCALES, BASES, CORRECTIONS, OBSERVATIONS
 from envs.geometry import _gather_rows, residuals
+from envs.modes import ACTION_SCALES, BASES, CORRECTIONS, OBSERVATIONS, PAPER_MODES
 
 
 def first_valid_action(env, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -223,10 +223,10 @@ def main() -> None:
         help="poses per robot of the scaling table at n = 7, e.g. 60,250,1000,1500 (default: a"
         " fixed set of sizes and team sizes)",
     )
-    parser.add_argument("--correction", default="pose", choices=CORRECTIONS)
-    parser.add_argument("--observation", default="paper", choices=OBSERVATIONS)
-    parser.add_argument("--action-scale", default="metric", choices=ACTION_SCALES)
-    parser.add_argument("--base", default="none", choices=BASES)
+    parser.add_argument("--correction", default=PAPER_MODES.correction, choices=CORRECTIONS)
+    parser.add_argument("--observation", default=PAPER_MODES.observation, choices=OBSERVATIONS)
+    parser.add_argument("--action-scale", default=PAPER_MODES.action_scale, choices=ACTION_SCALES)
+    parser.add_argument("--base", default=PAPER_MODES.base, choices=BASES)
     parser.add_argument(
         "--threads",
         type=int,

@@ -42,14 +42,15 @@ import torch
 
 from agents.actor import HybridActor
 from agents.checkpoint import load_actor, save_checkpoint
-from agents.config import CPU_SMALL, TaskConfig
+from agents.config import CPU_SMALL
 from agents.encoder import GraphBatch
 from agents.methods import DEFAULT_CHECKPOINT, episode_core, run_episode, solve_prop_v1
+from envs.modes import EnvModes
 from popbench.methods import Budget
 from popbench.synthetic import make_problem
 
 
-def actor_for(path: Path) -> tuple[HybridActor, TaskConfig, Path]:
+def actor_for(path: Path) -> tuple[HybridActor, EnvModes, Path]:
     """The checkpoint's actor and task, or a random cpu-small one (its preset's task) saved to a
     temporary checkpoint."""
     if path.is_file():
@@ -64,7 +65,7 @@ def actor_for(path: Path) -> tuple[HybridActor, TaskConfig, Path]:
 
 
 @torch.no_grad()
-def full_pass_seconds(actor: HybridActor, task: TaskConfig, problem, repeats: int) -> float:
+def full_pass_seconds(actor: HybridActor, task: EnvModes, problem, repeats: int) -> float:
     """Median time of one full (non-incremental) deterministic actor pass on `problem`, in the
     environment of the actor's `task` (agents.methods.episode_core, as prop-v1's episode)."""
     n = problem.num_robots
@@ -81,7 +82,7 @@ def full_pass_seconds(actor: HybridActor, task: TaskConfig, problem, repeats: in
 
 
 def per_step_table(
-    actor: HybridActor, task: TaskConfig, sizes: list[int], steps: int, full_steps: int, robots: int
+    actor: HybridActor, task: EnvModes, sizes: list[int], steps: int, full_steps: int, robots: int
 ) -> None:
     print(f"\nper-step time, {robots} robot(s), synthetic V2 graph of P poses per robot")
     print(f"{'P':>7} {'edges':>7} {'incremental ms':>15} {'full pass ms':>13} {'full/incr':>10}")

@@ -103,13 +103,6 @@ def upper_to_matrix(upper: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.stack(row, -1) for row in rows], -2)
 
 
-def matrix_parts(matrices: torch.Tensor) -> torch.Tensor:
-    """``(3, 3, ...)`` contiguous components of ``(..., 3, 3)`` matrices (fast elementwise use)."""
-    return matrices.permute(
-        matrices.dim() - 2, matrices.dim() - 1, *range(matrices.dim() - 2)
-    ).contiguous()
-
-
 def _rotate(theta: torch.Tensor, xy: torch.Tensor, transpose: bool = False) -> torch.Tensor:
     """``R(θ) xy`` (or ``R(θ)ᵀ xy``) of ``(..., 2)`` vectors."""
     c, s = torch.cos(theta), torch.sin(theta)
@@ -124,8 +117,8 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 def _apply(parts: torch.Tensor, vector: list, transpose: bool = False) -> list:
     """``M v`` (or ``Mᵀ v``) for matrices given by their components ``parts (3, 3, ...)``
-    (:func:`matrix_parts`) and a vector given as three component tensors, written out (batched
-    3 × 3 products on strided views are several times slower)."""
+    (:func:`envs.geometry.matrix_parts`) and a vector given as three component tensors, written
+    out (batched 3 × 3 products on strided views are several times slower)."""
     if transpose:
         return [sum(parts[j, i] * vector[j] for j in range(3)) for i in range(3)]
     return [sum(parts[i, j] * vector[j] for j in range(3)) for i in range(3)]
@@ -300,7 +293,7 @@ def _chosen(
 
 
 def _whitening_parts(t: CoreState) -> tuple[torch.Tensor, torch.Tensor]:
-    """The components ``(3, 3, G, E+1)`` of Λ^½ and Λ^−½ (:func:`matrix_parts`)."""
+    """The components ``(3, 3, G, E+1)`` of Λ^½ and Λ^−½ (:func:`envs.geometry.matrix_parts`)."""
     return t.sqrt_information_parts, t.inverse_sqrt_information_parts
 
 

@@ -67,12 +67,12 @@ from envs.correction import (
     subtree_members,
 )
 from envs.geometry import _gather_rows, _scatter_rows, between, compose, residuals
+from envs.modes import PAPER_MODES, EnvModes
 from envs.observation import REWARDS, Dimensions, pack_problem, whiten_attributes
 from envs.readout import ReadoutModes, chosen_base_observation, observation_changes, observe
 from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
 from envs.team import TeamReward
 from envs.tree import pack_trees, place_separators
-from popbench.choices import STEP_RULES, TEAM_REWARDS
 from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs
@@ -80,10 +80,6 @@ from popbench.objective import edge_costs
 DEFAULT_DELTA_MAX = (0.5, 0.5, 0.3)  # (δx [m], δy [m], δθ [rad])
 EPSILON = 1e-6  # ε of the reward's normalisation and terminal log-ratio
 INVALID_EDGE_MODES = ("raise", "repair")
-CORRECTIONS = ("pose", "subtree")
-OBSERVATIONS = ("paper", "invariant")
-ACTION_SCALES = ("metric", "whitened")
-BASES = ("none", "gauss-newton")
 WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened action
 
 
@@ -92,8 +88,8 @@ WHITENED_DELTA_MAX = 5.0  # |Δ| bound [standard deviations] of the whitened act
 
 class CoreTask(Protocol):
     """A record of the environment's modes (:meth:`PGOCore.for_problems`): its
-    ``core_options()`` gives the keywords ``correction``, ``observation``, ``action_scale``,
-    ``base`` of :class:`PGOCore`."""
+    ``core_options()`` gives them as keywords (``mode: value``, envs.modes.MODE_NAMES), as
+    :class:`envs.modes.EnvModes` and :class:`envs.tasks.Task` do."""
 
     def core_options(self) -> dict[str, str]: ...
 
@@ -123,8 +119,9 @@ class PGOCore:
             unprocessed edge, or the no-op when none is left).
         device: torch device of every tensor.
         dtype: floating dtype of the pose state (observations are float32).
-        correction, observation, action_scale, base, step_rule, team_reward: the modes
-            (values and what each does: docs/environment.md, "Options beside the paper's").
+        modes: the environment's modes (:class:`envs.modes.EnvModes`; what each does:
+            docs/environment.md, "Options beside the paper's"); ``mode_changes``, keywords of
+            it (``step_rule="line-search"``), change single modes of it.
         place_separators: place the separator copies at each episode start (default: in the
             subtree mode only).
         terminal_bonus: add the terminal ``log`` ratio on the episode's last step (the
@@ -142,35 +139,16 @@ class PGOCore:
         invalid_edge: str = "raise",
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float64,
-        correction: str = "pose",
-        observation: str = "paper",
-        action_scale: str = "metric",
+        modes: EnvModes = PAPER_MODES,
         place_separators: bool | None = None,
-        base: str = "none",
         terminal_bonus: bool = True,
-        step_rule: str = "clip",
-        team_reward: str = "none",
+        **mode_changes: str,
     ) -> None:
-        for name, value, allowed in (
-            ("correction", correction, CORRECTIONS),
-            ("observation", observation, OBSERVATIONS),
-            ("action_scale", action_scale, ACTION_SCALES),
-            ("team_reward", team_reward, TEAM_REWARDS),
-        ):
-            if value not in allowed:
-                raise ValueRangeError(name, value, ", ".join(allowed))
-        self.correction, self.observation_mode, self.action_scale = (
-            correction,
-            observation,
-            action_scale,
-        )
-        self.place = correction == "subtree" if place_separators is None else place_separators
-        if base not in BASES:
-            raise ValueRangeError("base", base, ", ".join(BASES))
-        if step_rule not in STEP_RULES:
-            raise ValueRangeError("step_rule", step_rule, ", ".join(STEP_RULES))
-        self.step_rule = step_rule
-        self.base, self.terminal_bonus = base, terminal_bonus
+        #: the environment's modes (envs.modes): ``modes`` with the keywords ``mode_changes``
+        self.modes = modes.replace(**mode_changes) if mode_changes else modes
+        modes = self.modes
+        self.place = modes.correction == "subtree" if place_separators is None else place_separators
+        self.terminal_bonus = terminal_bonus
         if reward not in REWARDS:
             raise ValueRangeError("reward", reward, ", ".join(REWARDS))
         if invalid_edge not in INVALID_EDGE_MODES:
@@ -182,7 +160,7 @@ class PGOCore:
         self.reward_kind, self.invalid_edge = reward, invalid_edge
         self.device, self.dtype = torch.device(device), dtype
         self.delta_max = torch.tensor(delta_max, dtype=dtype, device=self.device)
-        whitened = action_scale == "whitened"
+        whitened = modes.action_scale == "whitened"
         #: the bound of the action's ``delta`` (its spec): Δmax, or WHITENED_DELTA_MAX
         self.action_bound = (
             torch.full((3,), WHITENED_DELTA_MAX, dtype=dtype, device=self.device)
@@ -190,20 +168,20 @@ class PGOCore:
             else self.delta_max
         )
         #: what the base step and the read-out need of the modes (envs.basestep, envs.readout)
-        self.step_modes = StepModes(correction, self.delta_max, self.action_bound, whitened)
+        self.step_modes = StepModes(modes.correction, self.delta_max, self.action_bound, whitened)
         #: the modes of the executed base step: unbounded under the line search
         unbounded = torch.full((3,), torch.inf, dtype=dtype, device=self.device)
         self.execute_modes = (
-            StepModes(correction, unbounded, unbounded, whitened)
-            if step_rule != "clip"
-            else self.step_modes
+            self.step_modes
+            if modes.clips
+            else StepModes(modes.correction, unbounded, unbounded, whitened)
         )
         #: the searching rules' step scales, α = 0 last (envs.correction.LINE_SEARCH_SCALES)
         self.search_scales = torch.tensor(LINE_SEARCH_SCALES, dtype=dtype, device=self.device)
-        self.readout_modes = ReadoutModes(observation == "invariant", whitened)
+        self.readout_modes = ReadoutModes(modes.observation == "invariant", whitened)
         self.problems: list[DistributedProblem | None] = [None] * batch
         #: the terminal team reward (envs.team), None under team_reward="none"
-        self.team = TeamReward(team_reward) if team_reward != "none" else None
+        self.team = TeamReward(modes.team_reward) if modes.team_reward != "none" else None
         self._state: CoreState | None = None
         #: what the last step rewrote: vertices ``(B·n, V+1)`` and edge slots ``(B·n, E+1)``
         self.last_moved: torch.Tensor | None = None
@@ -225,9 +203,8 @@ class PGOCore:
 
         Args:
             problems: the problems, one per batch element, all with the same number of robots.
-            task: the environment's modes: any record whose ``core_options()`` gives the mode
-                keywords (``correction``, ``observation``, ``action_scale``, ``base``; e.g.
-                :class:`envs.tasks.Task` or the actors' task config); None: the paper's.
+            task: the environment's modes: any record whose ``core_options()`` gives them
+                (:class:`envs.modes.EnvModes`, :class:`envs.tasks.Task`); None: the paper's.
             reward: ``"F"`` (default: no ground truth needed) or ``"localisation"``.
             dims: padding maxima (default: the problems' own, :meth:`Dimensions.of`).
             options: further keywords of :class:`PGOCore` (``delta_max``, ``place_separators``,
@@ -236,9 +213,10 @@ class PGOCore:
         """
         if not problems:
             raise ValueRangeError("problems", 0, "at least one problem")
-        options = {**({} if task is None else task.core_options()), **options}
+        modes = PAPER_MODES if task is None else EnvModes(**task.core_options())
         dims = dims or Dimensions.of(problems)
-        core = cls(problems[0].num_robots, dims, len(problems), reward=reward, **options)
+        robots = problems[0].num_robots
+        core = cls(robots, dims, len(problems), reward=reward, modes=modes, **options)
         core.load(problems, range(len(problems)))
         return core
 
@@ -278,7 +256,7 @@ class PGOCore:
             start = place_separators(problem) if self.place else None
             pack = pack_problem(problem, self.dims, self.reward_kind, start)
             pack.update(pack_trees(problem, self.dims.vertices, self.dims.edges))
-            if self.action_scale == "whitened":
+            if self.modes.action_scale == "whitened":
                 whiten_attributes(pack)
             packs.append(pack)
         fresh = {
@@ -384,19 +362,19 @@ class PGOCore:
         tail = torch.gather(t.tails.view(g, -1), 1, flat_edge)  # (G, 1); no-op → trash
         head = torch.gather(t.heads.view(g, -1), 1, flat_edge)
         action = delta.to(self.device, self.dtype).reshape(g, 1, 3)
-        inside = subtree_members(t, self.correction, flat_edge)
+        inside = subtree_members(t, self.modes.correction, flat_edge)
         crossing = boundary(t, inside)  # the same edges before and after the move
         executed = self.metric_delta(flat_edge, action + self._base_step(flat_edge, crossing))
-        if self.step_rule != "clip":
+        if not self.modes.clips:
             candidates = executed * self.search_scales.view(1, -1, 1)  # (G, K, 3)
-            if self.step_rule == "search-with-clip":  # and the clip rule's own step
+            if self.modes.step_rule == "search-with-clip":  # and the clip rule's own step
                 clipped = action + self._base_step(flat_edge, crossing, self.step_modes)
                 clipped = self.metric_delta(flat_edge, clipped, clip=True)
                 candidates = torch.cat([candidates[:, :-1], clipped, candidates[:, -1:]], 1)
             executed = self._searched_step(poses, flat_edge, candidates, crossing)
         previous = t.loss.clone()
-        if self.correction == "subtree":
-            move_subtree(t, self.correction, poses, flat_edge, executed, inside)
+        if self.modes.correction == "subtree":
+            move_subtree(t, self.modes.correction, poses, flat_edge, executed, inside)
             change = refresh_boundary(t, crossing, self.reward_kind)
             refreshed = crossing.crossing
         else:
@@ -430,7 +408,7 @@ class PGOCore:
     ) -> torch.Tensor:
         """``(G, 1, 3)``: the Gauss–Newton base step on the edge slots ``edge (G, 1)`` in the
         executed ``modes`` (default: the rule's, unbounded unless it clips); 0 without a base."""
-        if self.base != "gauss-newton":
+        if self.modes.base != "gauss-newton":
             return torch.zeros(edge.shape[0], 1, 3, dtype=self.dtype, device=self.device)
         step = chosen_step(self.state, modes or self.execute_modes, edge, crossing)
         return step.view(edge.shape[0], 1, 3)
@@ -442,8 +420,8 @@ class PGOCore:
         3)`` (α = 0 last) under a searching step rule; the ``nonmonotone`` rule's window of local
         F values moves on by the chosen step."""
         t = self.state
-        change = candidate_changes(t, self.correction, poses, edge, candidates, crossing)
-        if self.step_rule == "nonmonotone":
+        change = candidate_changes(t, self.modes.correction, poses, edge, candidates, crossing)
+        if self.modes.step_rule == "nonmonotone":
             recent = t.recent_f.view(edge.shape[0], -1)
             choice = nonmonotone_choice(change, recent)
             now = recent[:, -1] + change.gather(1, choice.unsqueeze(-1)).squeeze(-1)
@@ -474,7 +452,7 @@ class PGOCore:
         """The edge slots ``(B·n, 1)`` of ``edge (B, n)`` and the boundary of what a correction of
         each would move, at the current state."""
         flat_edge = edge.to(self.device, torch.int64).reshape(self.batch * self.num_agents, 1)
-        inside = subtree_members(self.state, self.correction, flat_edge)
+        inside = subtree_members(self.state, self.modes.correction, flat_edge)
         return flat_edge, boundary(self.state, inside)
 
     def metric_delta(
@@ -484,10 +462,10 @@ class PGOCore:
         ``edge (G, 1)`` (``G = B·n``): clipped to the action bound, converted back from the
         whitened units (``action_scale="whitened"``), clipped to ``Δmax``; under a searching step
         rule (``clip`` False; default: whether the rule is ``"clip"``) converted only."""
-        clip = self.step_rule == "clip" if clip is None else clip
+        clip = self.modes.clips if clip is None else clip
         if clip:
             delta = torch.maximum(torch.minimum(delta, self.action_bound), -self.action_bound)
-        if self.action_scale == "whitened":
+        if self.modes.action_scale == "whitened":
             g = edge.shape[0]
             inverse_root = self.state.inverse_sqrt_information.view(g, -1, 3, 3)
             delta = (_gather_rows(inverse_root, edge) @ delta.unsqueeze(-1)).squeeze(-1)
@@ -501,9 +479,9 @@ class PGOCore:
         """The correction, out of place: ``(moved poses (G, V+1, 3), inside (G, V+1))`` for
         ``poses (G, V+1, 3)``, edge slots ``edge (G, 1)`` and metric ``delta (G, 1, 3)``;
         ``inside``: :func:`envs.correction.subtree_members`."""
-        inside = subtree_members(self.state, self.correction, edge)
+        inside = subtree_members(self.state, self.modes.correction, edge)
         moved = poses.clone()
-        move_subtree(self.state, self.correction, moved, edge, delta, inside)
+        move_subtree(self.state, self.modes.correction, moved, edge, delta, inside)
         return moved, inside
 
     # -- observation (envs.readout) ---------------------------------------------------------------
@@ -511,7 +489,7 @@ class PGOCore:
     def observation(self) -> dict[str, torch.Tensor]:
         """Per-agent padded observation (:func:`envs.readout.observe`; entries and widths in
         :mod:`envs.features`)."""
-        base = self.base_model() if self.base == "gauss-newton" else None
+        base = self.base_model() if self.modes.base == "gauss-newton" else None
         return observe(self.state, self.readout_modes, base)
 
     def graph_batch(self, element: int | None = None) -> dict[str, torch.Tensor]:

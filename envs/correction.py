@@ -19,9 +19,6 @@ from popbench.objective import edge_costs
 #: the step scales the ``line-search`` and ``nonmonotone`` step rules try, in decreasing order
 #: (:func:`candidate_changes`; 0: no move)
 LINE_SEARCH_SCALES = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125, 0.0)
-#: the local F values the ``nonmonotone`` rule's reference is the largest of (the current one and
-#: the agent's ``M − 1`` before it): Grippo, Lampariello & Lucidi's (1986) usual M = 10
-NONMONOTONE_WINDOW = 10
 
 if TYPE_CHECKING:
     from envs.basestep import Boundary
@@ -121,8 +118,8 @@ def monotone_choice(change: torch.Tensor) -> torch.Tensor:
 
 def nonmonotone_choice(change: torch.Tensor, recent: torch.Tensor) -> torch.Tensor:
     """``(G,)`` int64: the index of the largest scale whose local F stays at or below the
-    largest of the agent's last :data:`NONMONOTONE_WINDOW` values ``recent (G, M)`` (the current
-    one last), of the changes ``change (G, K)`` (the ``nonmonotone`` step rule).
+    largest of the agent's last :data:`envs.modes.NONMONOTONE_WINDOW` values ``recent (G, M)``
+    (the current one last), of the changes ``change (G, K)`` (the ``nonmonotone`` step rule).
 
     The reference of Grippo, Lampariello & Lucidi (1986), without their sufficient-decrease term
     (the scales are a fixed grid): a step may raise F for a while, but the window's largest value

@@ -109,7 +109,7 @@ class Expert:
         tail = torch.gather(t.tails.view(g, -1), 1, flat_edge)
         head = torch.gather(t.heads.view(g, -1), 1, flat_edge)
         x_p, x_q = _gather_rows(poses, tail), _gather_rows(poses, head)
-        if core.correction == "subtree":
+        if core.modes.correction == "subtree":
             target = between(_gather_rows(optimum, tail), _gather_rows(optimum, head))
             on_tree = torch.gather(t.tree_edge.view(g, -1), 1, flat_edge).unsqueeze(-1)
         else:
@@ -118,7 +118,7 @@ class Expert:
         delta = target - between(x_p, x_q)
         delta = torch.cat([delta[..., :2], wrap(delta[..., 2:])], -1)
         delta = torch.where(on_tree, delta, torch.zeros_like(delta))
-        if core.action_scale == "whitened":
+        if core.modes.action_scale == "whitened":
             root = _gather_rows(t.sqrt_information.view(g, -1, 3, 3), flat_edge)
             delta = (root @ delta.unsqueeze(-1)).squeeze(-1)
         return delta.view(core.batch, core.num_agents, 3)
@@ -134,7 +134,7 @@ class Expert:
         relative pose, so the order does not change the end point), else every allowed one."""
         core = self.core
         mask = core.action_mask()
-        if core.correction != "subtree":
+        if core.modes.correction != "subtree":
             return mask
         tree = core.state.tree_edge[..., : mask.shape[-1] - 1] & mask[..., :-1]
         tree = torch.cat([tree, torch.zeros_like(tree[..., :1])], -1)
@@ -145,6 +145,6 @@ class Expert:
         on ``edge (B, n)`` — the expert's Δ itself, or its difference from the Gauss–Newton
         base step when the core adds one (``base="gauss-newton"``); not clipped."""
         delta = self.delta(edge)
-        if self.core.base == "gauss-newton":
+        if self.core.modes.base == "gauss-newton":
             delta = delta - self.core.base_step(edge)
         return delta.to(torch.float32)

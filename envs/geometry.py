@@ -96,3 +96,10 @@ def _scatter_rows(values: torch.Tensor, index: torch.Tensor, rows: torch.Tensor)
     tail = values.shape[2:]
     expanded = index.reshape(index.shape + (1,) * len(tail)).expand(index.shape + tail)
     values.scatter_(1, expanded, rows)
+
+
+def matrix_parts(matrices: torch.Tensor) -> torch.Tensor:
+    """``(3, 3, ...)`` contiguous components of ``(..., 3, 3)`` matrices (fast elementwise use)."""
+    return matrices.permute(
+        matrices.dim() - 2, matrices.dim() - 1, *range(matrices.dim() - 2)
+    ).contiguous()

@@ -128,7 +128,7 @@ class PGOParallelEnv(ParallelEnv):
             "processed": flag(e),
             "residuals": real(e, 3),
         }
-        if self.core.base == "gauss-newton":
+        if self.core.modes.base == "gauss-newton":
             arrays["base_step"] = real(e, 3)
             arrays["base_model"] = real(e, MODEL_FEATURES)
         return spaces.Dict(arrays)

@@ -21,8 +21,8 @@ import dataclasses
 import torch
 from torch import Tensor
 
-from envs.basestep import matrix_parts
-from envs.correction import NONMONOTONE_WINDOW
+from envs.geometry import matrix_parts
+from envs.modes import NONMONOTONE_WINDOW
 
 
 def _entry(kind: str) -> dataclasses.Field:
@@ -49,7 +49,7 @@ class CoreState:
     Derived:
         edge_index ``(2, E)`` int64 local (tail, head), 0 on padding; sqrt_information_parts,
         inverse_sqrt_information_parts ``(3, 3, B·n, E+1)`` the matrices' components
-        (:func:`envs.basestep.matrix_parts`).
+        (:func:`envs.geometry.matrix_parts`).
     Dynamic:
         residuals ``(E+1, 3)`` against the measurements; costs ``(E+1,)`` each edge's term of
         ``L`` (against the targets); processed ``(E+1,)`` bool (the no-op slot always);

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from envs.modes import PAPER_MODES, TRAJECTORY_MODES, EnvModes
 from popbench.errors import ValueRangeError
 
 
@@ -27,9 +28,8 @@ class Task:
     Attributes:
         name: the registry key.
         summary: one line: what the task asks of an algorithm.
-        correction, observation, action_scale, base, step_rule, team_reward: the
-            environment's modes (:class:`envs.core.PGOCore`; every task trains under the
-            clipped step rule, the one the committed actors were trained in).
+        modes: the environment's modes (:class:`envs.modes.EnvModes`; every task trains
+            under the clipped step rule, the one the committed actors were trained in).
         reward: ``"localisation"`` (ground truth), ``"F"`` (the local objective), or None:
             ``"localisation"`` where the problems have ground truth, else ``"F"``.
         terminal_bonus: the terminal log-ratio bonus on the episode's last step.
@@ -43,12 +43,7 @@ class Task:
 
     name: str
     summary: str
-    correction: str = "pose"
-    observation: str = "paper"
-    action_scale: str = "metric"
-    base: str = "none"
-    step_rule: str = "clip"
-    team_reward: str = "none"
+    modes: EnvModes = PAPER_MODES
     reward: str | None = None
     terminal_bonus: bool = True
     robots: int = 7
@@ -60,14 +55,7 @@ class Task:
 
     def core_options(self) -> dict[str, str]:
         """The mode keywords of :class:`envs.core.PGOCore` (:meth:`PGOCore.for_problems`)."""
-        return {
-            "correction": self.correction,
-            "observation": self.observation,
-            "action_scale": self.action_scale,
-            "base": self.base,
-            "step_rule": self.step_rule,
-            "team_reward": self.team_reward,
-        }
+        return self.modes.core_options()
 
     def env_options(self) -> dict[str, Any]:
         """The keywords of ``envs.make_torchrl_env`` / ``make_pettingzoo_env`` that build it."""
@@ -104,10 +92,7 @@ ACTORS = dataclasses.replace(
     name="actors",
     summary="what the shipped GA-SAC, MAPPO and IPPO actors train on: subtree correction, "
     "invariant observation, whitened Δ on a Gauss–Newton base step, local-F reward, no bonus",
-    correction="subtree",
-    observation="invariant",
-    action_scale="whitened",
-    base="gauss-newton",
+    modes=TRAJECTORY_MODES,
     reward="F",
     terminal_bonus=False,
 )
@@ -144,7 +129,7 @@ TASKS: dict[str, Task] = {
             summary="the actors' task rewarded as a team: every robot gets 1 - F_c(end) / "
             "F_c(start) at the episode's end, F_c the F after the consensus (what the tables "
             "score), 0 before (envs.team)",
-            team_reward="consensus",
+            modes=TRAJECTORY_MODES.replace(team_reward="consensus"),
         ),
         dataclasses.replace(
             ACTORS,

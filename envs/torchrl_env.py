@@ -156,7 +156,7 @@ class PGOEnv(EnvBase):
             shape=b,
             device=device,
         )
-        if self.core.base == "gauss-newton":
+        if self.core.modes.base == "gauss-newton":
             observation["base_step"] = real(e, 3)
             observation["base_model"] = real(e, MODEL_FEATURES)
         agents = Composite(observation=observation, action_mask=flag(e + 1), shape=b, device=device)

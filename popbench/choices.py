@@ -9,9 +9,10 @@ once: the modules that implement a choice import its list from here (no NumPy, s
   ``"none"``;
 * :data:`DEFAULT_GROUP_SIZE` — the false loop closures per group of the vertigo-grouped outlier
   model (:mod:`popbench.outliers`);
-* :data:`STEP_RULES` — how the environment executes a correction (:class:`envs.core.PGOCore`), and
-  :data:`DEFAULT_STEP_RULE` — the one prop-v1 and ``popbench run heldout`` use, chosen on 30
-  held-out SLAM-shaped maps (docs/training.md, "The step rule at inference");
+* :data:`STEP_RULES` — how the environment executes a correction (:class:`envs.core.PGOCore`),
+  :data:`TRAINING_STEP_RULE` — the one every task trains in, and :data:`DEFAULT_STEP_RULE` — the
+  one prop-v1 and ``popbench run heldout`` use, chosen on 30 held-out SLAM-shaped maps
+  (docs/training.md, "The step rule at inference");
 * :data:`OBJECTIVES` — the costs ``lm``, ``gnc`` and ``local-lm`` minimise (docs/solve.md);
 * :data:`TEAM_REWARDS` — the environment's team reward modes (:mod:`envs.team`).
 """
@@ -31,6 +32,7 @@ ROBUST_KERNELS = ("huber", "gm", "welsch")
 DEFAULT_GROUP_SIZE = 5  # vertigo-grouped: edges per group
 # "clip": the paper's bounded correction, the training rule; docs/environment.md, "The step rule"
 STEP_RULES = ("clip", "line-search", "nonmonotone", "search-with-clip")
+TRAINING_STEP_RULE = STEP_RULES[0]  # every task's and committed actor's (envs.modes.EnvModes)
 DEFAULT_STEP_RULE = "line-search"
 OBJECTIVES = ("F", "chi2")
 # "none": each robot's own reward; "consensus": the team's terminal drop in F after the

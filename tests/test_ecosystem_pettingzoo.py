@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from envs import make_problem_source
-from envs.core import ACTION_SCALES, BASES, CORRECTIONS, OBSERVATIONS
+from envs.modes import ACTION_SCALES, BASES, CORRECTIONS, OBSERVATIONS
 from envs.pettingzoo_env import PGOParallelEnv
 from popbench.errors import ValueRangeError
 

@@ -108,7 +108,7 @@ def test_for_problems_takes_the_task_s_modes(problems) -> None:
 
     core = PGOCore.for_problems(problems[:1], Task(), delta_max=(0.2, 0.2, 0.1))
     modes = ("subtree", "whitened", "gauss-newton")
-    assert (core.correction, core.action_scale, core.base) == modes
+    assert (core.modes.correction, core.modes.action_scale, core.modes.base) == modes
     assert core.delta_max.tolist() == pytest.approx([0.2, 0.2, 0.1])
     assert core.reward_kind == "F"
     graphs = core.graph_batch(0)

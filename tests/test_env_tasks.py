@@ -13,6 +13,7 @@ import envs
 from agents.config import PRESETS, with_task
 from envs.core import PGOCore
 from envs.features import EDGE, ENTRIES, NODE, markdown_table
+from envs.modes import PAPER_MODES, TRAJECTORY_MODES
 from envs.tasks import ACTORS, PAPER, TASKS, get_task
 from popbench.cli import main
 from popbench.cli.train import train_config
@@ -44,16 +45,11 @@ def test_the_actors_task_is_what_the_shipped_algorithms_train_on(preset: str) ->
 def test_make_torchrl_env_builds_the_task_and_keywords_override_it() -> None:
     env = envs.make_torchrl_env(task="actors", batch_size=2, **SMALL)
     core = env.core
-    assert (core.correction, core.observation_mode, core.action_scale, core.base) == (
-        "subtree",
-        "invariant",
-        "whitened",
-        "gauss-newton",
-    )
+    assert core.modes == TRAJECTORY_MODES == ACTORS.modes
     assert (core.reward_kind, core.terminal_bonus, core.num_agents) == ("F", False, 3)
     assert env.reset()["agents", "observation", "base_step"].shape[:2] == (2, 3)
     paper = envs.make_torchrl_env(batch_size=1, **SMALL).core  # no task: the paper's game
-    assert (paper.correction, paper.base, paper.reward_kind) == ("pose", "none", "localisation")
+    assert (paper.modes, paper.reward_kind) == (PAPER_MODES, "localisation")
     assert envs.make_torchrl_env(task=PAPER, batch_size=1, **SMALL).core.terminal_bonus
 
 
@@ -61,7 +57,7 @@ def test_make_pettingzoo_env_builds_the_task() -> None:
     env = envs.make_pettingzoo_env(task="outliers", seed=1, **SMALL)
     env.reset(seed=1)
     assert env.core.problems[0].outlier_mask is not None  # the task's training outliers
-    assert env.core.correction == "subtree" and len(env.possible_agents) == 3
+    assert env.core.modes.correction == "subtree" and len(env.possible_agents) == 3
 
 
 def test_popbench_train_takes_a_task_and_explicit_options_override_it() -> None:

@@ -122,11 +122,11 @@ def module_graph(package: str, type_only: bool) -> dict[str, set[str]]:
     return graph
 
 
-@pytest.mark.parametrize("package", ["popbench", "baselines"])
+@pytest.mark.parametrize("package", ["popbench", "baselines", "envs", "agents"])
 def test_no_import_circle_in_the_library_even_for_types(package: str) -> None:
-    """No circle of files in popbench/ (its sub-packages included) or baselines/, counting the
-    imports made for types only: a circle there is a design one (a private name reached back
-    into), not only a run-time hazard."""
+    """No circle of files in any package (sub-packages included), counting the imports made for
+    types only: a circle there is a design one (a private name reached back into, the declared
+    state reaching up into the step code), not only a run-time hazard."""
     assert not on_circles(module_graph(package, type_only=True))
 
 
@@ -136,6 +136,7 @@ def test_the_library_checker_sees_imports() -> None:
     assert "popbench.solvers.chordal" in graph["popbench.initial"]  # inside a function
     assert "popbench.distributed" in graph["popbench.initial"]  # under TYPE_CHECKING
     assert on_circles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == ["a", "b"]
+    assert "envs.state" in module_graph("envs", type_only=True)["envs.basestep"]  # for its type
 
 
 def test_the_checker_sees_imports() -> None:  # the tests above cannot pass vacuously
@@ -211,3 +212,89 @@ def test_every_algorithm_has_a_learner_record() -> None:
 
     assert set(LEARNERS) == set(ALGORITHMS)
     assert len({id(learner) for learner in LEARNERS.values()}) == len(LEARNERS)
+
+
+MODE_DEFAULTS_HOME = ROOT / "envs" / "modes.py"
+STEP_RULES_HOME = ROOT / "popbench" / "choices.py"
+
+
+def _string_constants(tree: ast.AST) -> list[ast.Constant]:
+    """The string constants of ``tree`` other than docstrings."""
+    docstrings = {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    return [
+        node
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant)
+        and isinstance(node.value, str)
+        and id(node) not in docstrings
+    ]
+
+
+def _is_string(node: ast.AST | None) -> bool:
+    return isinstance(node, ast.Constant) and isinstance(node.value, str)
+
+
+def _mode_defaults(tree: ast.AST) -> list[int]:
+    """Lines where a mode of envs.modes gets a literal default: a parameter or field named after
+    a mode with a string default, or ``.get("step_rule", "…")``."""
+    from envs.modes import MODE_NAMES
+
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.arguments):
+            named = node.posonlyargs + node.args
+            pairs = list(zip(named[len(named) - len(node.defaults) :], node.defaults, strict=True))
+            pairs += [
+                (a, d)
+                for a, d in zip(node.kwonlyargs, node.kw_defaults, strict=True)
+                if d is not None
+            ]
+            lines += [d.lineno for a, d in pairs if a.arg in MODE_NAMES and _is_string(d)]
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            if node.target.id in MODE_NAMES and _is_string(node.value):
+                lines.append(node.lineno)
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            arguments = node.args
+            if (
+                node.func.attr == "get"
+                and len(arguments) == 2
+                and all(_is_string(a) for a in arguments)
+            ):
+                if arguments[0].value in MODE_NAMES:
+                    lines.append(node.lineno)
+    return lines
+
+
+def test_every_mode_default_is_defined_once() -> None:
+    """The environment's mode defaults live in envs.modes.EnvModes alone, and the training step
+    rule's name is written once (popbench.choices); every other module refers to them."""
+    clip, defaults = [], []
+    for package in ("popbench", "envs", "agents", "baselines"):
+        for path in (ROOT / package).rglob("*.py"):
+            tree = ast.parse(path.read_text())
+            where = path.relative_to(ROOT)
+            if path != STEP_RULES_HOME:
+                clip += [
+                    f"{where}:{n.lineno}" for n in _string_constants(tree) if n.value == "clip"
+                ]
+            if path != MODE_DEFAULTS_HOME:
+                defaults += [f"{where}:{line}" for line in _mode_defaults(tree)]
+    assert not clip, f"the step rule 'clip' written outside popbench/choices.py: {clip}"
+    assert not defaults, f"a mode default written outside envs/modes.py: {defaults}"
+
+
+def test_the_mode_default_checker_sees_literals() -> None:
+    tree = ast.parse(
+        'def f(step_rule="clip", *, base="none", correction=None):\n    """doc "clip"."""\n'
+        "class A:\n    correction: str = 'pose'\n"
+        "x = spec.get('step_rule', 'clip')\n"
+    )
+    assert [node.value for node in _string_constants(tree)].count("clip") == 2
+    assert sorted(_mode_defaults(tree)) == [1, 1, 4, 5]

@@ -8,9 +8,10 @@ import math
 import pytest
 import torch
 
-from agents.config import TRAJECTORY_TASK, ExperimentConfig, ImitationConfig
+from agents.config import ExperimentConfig, ImitationConfig
 from agents.imitation import imitate, make_core
 from agents.loss_terms import imitation_losses, pre_tanh_label
+from envs.modes import TRAJECTORY_MODES
 
 
 def test_edge_loss_is_the_log_of_the_right_choices_probability():
@@ -84,7 +85,7 @@ def test_a_short_dagger_run_trains_the_actor(tmp_path):
     from tests.conftest import tiny_model
 
     experiment = ExperimentConfig(robots=3, poses_per_robot=12, seed=1)
-    core, sampler = make_core(TRAJECTORY_TASK, experiment, 1, 0)
+    core, sampler = make_core(TRAJECTORY_MODES, experiment, 1, 0)
     core.load([sampler.draw(0)], [0])
     observation = core.observation()
     model = dataclasses.replace(tiny_model(), delta_max=tuple(float(v) for v in core.action_bound))
@@ -93,7 +94,7 @@ def test_a_short_dagger_run_trains_the_actor(tmp_path):
     )
     before = [p.detach().clone() for p in actor.parameters()]
     config = ImitationConfig(episodes=3, num_envs=2, beta_decay=0.5)
-    logs = imitate(actor, TRAJECTORY_TASK, experiment, config)
+    logs = imitate(actor, TRAJECTORY_MODES, experiment, config)
     assert [log.episode for log in logs] == [0, 1, 2]
     assert [log.beta for log in logs] == [1.0, 0.5, 0.25]
     assert all(math.isfinite(log.edge_loss) and math.isfinite(log.delta_loss) for log in logs)

@@ -11,11 +11,12 @@ import pytest
 import torch
 from conftest import tiny_model
 
-from agents.config import TRAJECTORY_TASK, AlgorithmConfig, ExperimentConfig, ImitationConfig
+from agents.config import AlgorithmConfig, ExperimentConfig, ImitationConfig
+from envs.modes import TRAJECTORY_MODES
 from popbench.threads import limited_threads
 
 ROBOTS, POSES = 3, 10
-TASK = TRAJECTORY_TASK
+TASK = TRAJECTORY_MODES
 EXPERIMENT = ExperimentConfig(robots=ROBOTS, poses_per_robot=POSES, seed=4)
 
 

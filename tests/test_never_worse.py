@@ -113,11 +113,11 @@ def test_cheap_methods_never_return_F_above_the_start(dataset: str) -> None:
 
 
 def trajectory_core(problems, **overrides):
-    from agents.config import TRAJECTORY_TASK
     from envs.core import PGOCore
+    from envs.modes import TRAJECTORY_MODES
     from envs.observation import Dimensions
 
-    options = {**TRAJECTORY_TASK.core_options(), "reward": "F", **overrides}
+    options = {**TRAJECTORY_MODES.core_options(), "reward": "F", **overrides}
     core = PGOCore(problems[0].num_robots, Dimensions.of(problems), len(problems), **options)
     core.load(problems, range(len(problems)))
     return core

@@ -19,7 +19,7 @@ from agents.checkpoint import (
     save_checkpoint,
 )
 from agents.config import (
-    TRAJECTORY_TASK,
+    TRAJECTORY_MODES,
     ExperimentConfig,
     OutlierGateConfig,
     TrainConfig,
@@ -45,7 +45,7 @@ def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     actor = HybridActor(6, 11, TINY)
     path = tmp_path_factory.mktemp("gate") / "actor.pt"
     experiment = dataclasses.replace(ExperimentConfig(), robots=3, poses_per_robot=12)
-    config = TrainConfig(model=TINY, task=TRAJECTORY_TASK, experiment=experiment)
+    config = TrainConfig(model=TINY, task=TRAJECTORY_MODES, experiment=experiment)
     save_checkpoint(
         path,
         {"config": config.to_dict(), "dims": {"node": 6, "edge": 11}, "actor": actor.state_dict()},
@@ -72,7 +72,7 @@ def test_the_reconciled_state_shows_outliers_the_episode_start_hides(corrupted) 
     from envs.core import PGOCore
 
     truth = corrupted.graph.ground_truth
-    state = reconciled_state(corrupted, truth, TRAJECTORY_TASK)
+    state = reconciled_state(corrupted, truth, TRAJECTORY_MODES)
     mask = state.edge_mask
     size = state.graphs.residuals.norm(dim=-1)
     outlier = state.outlier & mask
@@ -80,7 +80,7 @@ def test_the_reconciled_state_shows_outliers_the_episode_start_hides(corrupted) 
     assert float(size[outlier].min()) > 2 * float(size[mask & ~state.outlier].max())
 
     placed = dataclasses.replace(corrupted, graph=corrupted.graph.replace(poses=truth))
-    core = PGOCore.for_problems([placed], TRAJECTORY_TASK)
+    core = PGOCore.for_problems([placed], TRAJECTORY_MODES)
     start = core.observation()["residuals"][0].norm(dim=-1)
     kinds = torch.as_tensor(corrupted.graph.kinds)[state.edge_ids.clamp(min=0)]
     hidden = outlier & (kinds == EdgeKind.INTER_LOOP) & (start < 1e-9)

@@ -11,23 +11,23 @@ import numpy as np
 import pytest
 import torch
 
-from agents.config import TRAJECTORY_TASK, TaskConfig
 from envs.core import PGOCore
-from envs.correction import LINE_SEARCH_SCALES, NONMONOTONE_WINDOW, nonmonotone_choice
+from envs.correction import LINE_SEARCH_SCALES, nonmonotone_choice
 from envs.expert import Expert
+from envs.modes import NONMONOTONE_WINDOW, TRAJECTORY_MODES, EnvModes
 from popbench import objective
 from popbench.errors import ValueRangeError
 from popbench.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 20}
 TASKS = {
-    "subtree, base step": TRAJECTORY_TASK,
-    "subtree, no base": TaskConfig("subtree", "invariant", "whitened", "none"),
-    "pose, metric": TaskConfig("pose", "paper", "metric", "none"),
+    "subtree, base step": TRAJECTORY_MODES,
+    "subtree, no base": EnvModes("subtree", "invariant", "whitened", "none"),
+    "pose, metric": EnvModes("pose", "paper", "metric", "none"),
 }
 
 
-def random_episode(task: TaskConfig, rule: str, seed: int) -> np.ndarray:
+def random_episode(task: EnvModes, rule: str, seed: int) -> np.ndarray:
     """``(T + 1, n)`` every agent's local F along one episode of uniformly random edges and
     corrections drawn over twice the action bound (the rule, not the policy, keeps them safe)."""
     problem = make_problem(seed=seed, **SMALL)
@@ -85,7 +85,7 @@ def test_the_nonmonotone_choice_takes_the_largest_acceptable_scale() -> None:
 
 def test_the_core_keeps_its_loss_equal_to_the_local_objective() -> None:
     problem = make_problem(seed=7, **SMALL)
-    task = dataclasses.replace(TRAJECTORY_TASK, step_rule="nonmonotone")
+    task = dataclasses.replace(TRAJECTORY_MODES, step_rule="nonmonotone")
     core = PGOCore.for_problems([problem], task)
     expert = Expert(core)
     for _ in range(core.horizon):
@@ -100,7 +100,7 @@ def test_the_core_keeps_its_loss_equal_to_the_local_objective() -> None:
 
 def test_the_chosen_scale_is_the_best_candidate() -> None:
     problem = make_problem(seed=2, **SMALL)
-    task = dataclasses.replace(TRAJECTORY_TASK, base="none")
+    task = dataclasses.replace(TRAJECTORY_MODES, base="none")
     rng = np.random.default_rng(0)
     for _ in range(5):
         edge = torch.as_tensor(rng.integers(0, 10, 3)).view(1, 3)

@@ -13,7 +13,7 @@ import torch
 from conftest import tiny_model
 
 from agents.config import (
-    TRAJECTORY_TASK,
+    TRAJECTORY_MODES,
     AlgorithmConfig,
     ExperimentConfig,
     ImitationConfig,
@@ -35,7 +35,7 @@ def labelled_env(batch: int = 2, seed: int = 0, rate: float = 0.6):
         poses_per_robot=POSES,
         outlier_rate_max=rate,
         labels=True,
-        **TRAJECTORY_TASK.core_options(),
+        **TRAJECTORY_MODES.core_options(),
     )
 
 
@@ -279,7 +279,7 @@ def test_a_tiny_run_with_outliers_and_both_terms_logs_them(tmp_path) -> None:
             progress=False,
             outlier_rate_max=0.3,
         ),
-        task=TRAJECTORY_TASK,
+        task=TRAJECTORY_MODES,
     )
     train(config, resume=False)
     with (tmp_path / "metrics.csv").open() as handle:
@@ -294,12 +294,12 @@ def test_imitation_with_outliers_trains_the_gate_on_the_labels() -> None:
     experiment = ExperimentConfig(
         robots=ROBOTS, poses_per_robot=POSES, seed=1, outlier_rate_max=0.6
     )
-    core, sampler = make_core(TRAJECTORY_TASK, experiment, 1, 0)
+    core, sampler = make_core(TRAJECTORY_MODES, experiment, 1, 0)
     assert sampler.draw(0).outlier_mask is not None
     env = labelled_env()
     actor = actor_for(env)
     config = ImitationConfig(episodes=2, num_envs=2, gate_weight=1.0)
-    logs = imitate(actor, TRAJECTORY_TASK, experiment, config)
+    logs = imitate(actor, TRAJECTORY_MODES, experiment, config)
     assert all(log.gate_loss > 0 for log in logs)
 
 

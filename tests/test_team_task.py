@@ -55,10 +55,10 @@ def zero_delta_episode(team_reward: str, seed: int = 3):
 
 def test_the_team_task_is_the_actors_task_with_the_team_reward() -> None:
     team = get_task("team")
-    assert team.team_reward == "consensus"
+    assert team.modes.team_reward == "consensus"
+    modes = team.modes.replace(team_reward="none")
     assert (
-        dataclasses.replace(team, name=ACTORS.name, summary=ACTORS.summary, team_reward="none")
-        == ACTORS
+        dataclasses.replace(team, name=ACTORS.name, summary=ACTORS.summary, modes=modes) == ACTORS
     )
     env = envs.make_torchrl_env(task="team", batch_size=2, **SMALL)
     check_env_specs(env)

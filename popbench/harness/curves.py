@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from popbench.choices import TRAINING_STEP_RULE
 from popbench.errors import ValueRangeError
 from popbench.harness import comparison
 from popbench.harness.heldout import HELDOUT_SEED_BASE, ROW_ALIASES, HeldoutConfig, run_heldout
@@ -112,7 +113,7 @@ def score_run(run: Path, problems: int) -> pd.DataFrame:
                 poses_per_robot=identity.poses_per_robot,
                 rows=("ga-sac",),
                 checkpoint=found[point],
-                step_rule="clip",  # the environment the algorithms are trained in
+                step_rule=TRAINING_STEP_RULE,  # the environment the algorithms are trained in
                 out=run / "curve-cells" / f"actor-{point:07d}",
             )
             run_heldout(config)

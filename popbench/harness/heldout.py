@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from popbench.choices import DEFAULT_STEP_RULE
+from popbench.choices import DEFAULT_STEP_RULE, TRAINING_STEP_RULE
 from popbench.harness.cache import code_fingerprint
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.runner import run_experiment
@@ -158,7 +158,7 @@ def cell_specs(config: HeldoutConfig) -> list[Spec]:
                     }
                     if config.outlier_rate > 0:  # absent otherwise: earlier cells stay valid
                         spec["outlier_rate"] = config.outlier_rate
-                    if config.step_rule != "clip":  # absent for the cells before the option
+                    if config.step_rule != TRAINING_STEP_RULE:  # absent: cells before the option
                         spec["step_rule"] = config.step_rule
                     if config.consensus_iterations != DEFAULT_CONSENSUS_ITERATIONS:
                         spec["consensus_iterations"] = config.consensus_iterations
