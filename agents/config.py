@@ -247,7 +247,7 @@ class OutlierGateConfig:
         lr: Adam learning rate.
         outlier_rate_max: each problem's outlier rate is drawn from U(0, outlier_rate_max).
         gate_l1: weight of the gates' L1 penalty beside the supervised gate loss (weight 1).
-        consensus: the consensus the states are reconciled with (popbench.reconcile; None:
+        consensus: the consensus the states are reconciled with (popbench.consensus.reconcile; None:
             its default, the one prop-v1 runs).
         seed: seed of the problem streams and the shuffling.
     """

@@ -39,7 +39,7 @@ from agents.outlier_gate import (
     state_gate,
 )
 from envs.modes import EnvModes
-from popbench.distributed import DistributedProblem
+from popbench.problems.distributed import DistributedProblem
 
 TRAINING_STREAM, VALIDATION_STREAM = 0x6A7E, 0x6A7F  # SeedSequence keys [seed, k, stream]
 
@@ -75,7 +75,7 @@ def reconciled_states(
 ) -> list[tuple[DistributedProblem, GateState]]:
     """Each problem with its robots' local graphs after the actor's episode and the consensus."""
     from agents.methods import run_episode
-    from popbench.reconcile import reconcile
+    from popbench.consensus.reconcile import reconcile
 
     states = []
     for problem in problems:
@@ -105,7 +105,7 @@ def fit_outlier_gate(
     training ones (``experiment``'s team size, noise level and poses per robot);
     ``on_problem`` is told after each state is made."""
     from envs import make_problem_source
-    from popbench.reconcile import DEFAULT_CONSENSUS
+    from popbench.consensus.reconcile import DEFAULT_CONSENSUS
 
     started = time.perf_counter()
     source = make_problem_source(

@@ -1,5 +1,5 @@
 """The rows of ``popbench run heldout`` (popbench.harness.heldout): what each row does to the
-robots' local graphs before the shared consensus (popbench.reconcile).
+robots' local graphs before the shared consensus (popbench.consensus.reconcile).
 
 Every policy row runs one episode of the environment (envs.core.PGOCore, the paper's horizon:
 each local edge once) from the same start, with the separator copies placed from their owned
@@ -43,12 +43,12 @@ from agents.outlier_gate import candidate_auc
 from envs.modes import TRAJECTORY_MODES
 from popbench import objective
 from popbench.choices import TRAINING_STEP_RULE
+from popbench.consensus.reconcile import DEFAULT_CONSENSUS_ITERATIONS, reconcile
 from popbench.datasets import file_sha256
-from popbench.distributed import DistributedProblem
 from popbench.metrics import ate
-from popbench.reconcile import DEFAULT_CONSENSUS_ITERATIONS, reconcile
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 from popbench.solvers.local_lm import local_optima
-from popbench.synthetic import make_problem
 
 # The cpu-residual recipe's two phases, seed 0: its imitation actor and its GA-SAC actor
 # (prop-v1's default, DEFAULT_CHECKPOINT).

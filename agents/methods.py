@@ -12,11 +12,11 @@ prop-v1
        recomputed). A robot keeps its episode's result only where the episode lowered its local
        objective (F of its local graph with its own copies), else its start copy
        (docs/never_worse.md).
-    2. The consensus (popbench.reconcile, `consensus=`): information-weighted ADMM over the
-       separators (popbench.consensus; the paper's), by default after a rigid alignment of the
-       robots' frames (popbench.alignment, "aligned-admm"; docs/consensus.md for the choice of
-       the default); the global estimate is its output where that lowered F below its input's
-       (the kept copies assembled, each pose from its owner), else that input. The registry
+    2. The consensus (popbench.consensus.reconcile, `consensus=`): information-weighted ADMM over
+       the separators (popbench.consensus.admm; the paper's), by default after a rigid alignment of
+       the robots' frames (popbench.consensus.alignment, "aligned-admm"; docs/consensus.md for the
+       choice of the default); the global estimate is its output where that lowered F below its
+       input's (the kept copies assembled, each pose from its owner), else that input. The registry
        (popbench.methods.never_worse) returns the start where even that is above it.
 prop-v2
     prop-v1, then 75 Levenberg–Marquardt iterations (popbench.solvers.lm) from its output.
@@ -44,14 +44,14 @@ from agents.outlier_gate import GATE_THRESHOLD, OutlierGate, holder_minimum, rec
 from envs.modes import PAPER_MODES, EnvModes
 from popbench import objective
 from popbench.choices import DEFAULT_STEP_RULE
-from popbench.distributed import DistributedProblem
-from popbench.methods import Budget, Result, method_record
-from popbench.reconcile import (
+from popbench.consensus.reconcile import (
     DEFAULT_CONSENSUS,
     DEFAULT_CONSENSUS_ITERATIONS,
     check_consensus,
     reconcile,
 )
+from popbench.methods import Budget, Result, method_record
+from popbench.problems.distributed import DistributedProblem
 
 if TYPE_CHECKING:
     from envs.core import PGOCore
@@ -241,8 +241,8 @@ def solve_prop_v1(
         checkpoint: actor checkpoint (default: the prop-v1 record's); the episode
             runs in the environment the checkpoint was trained in (its `task`).
         device: torch device of the actor ("cpu").
-        consensus: one of popbench.reconcile.CONSENSUS_MODES ("admm": the paper's plain ADMM;
-            "aligned-admm": the robots' frames aligned first).
+        consensus: one of popbench.consensus.reconcile.CONSENSUS_MODES ("admm": the paper's plain
+            ADMM; "aligned-admm": the robots' frames aligned first).
         consensus_iterations: ADMM iterations at most.
         step_rule: the environment's step rule (envs.core.PGOCore, popbench.choices.STEP_RULES,
             :data:`DEFAULT_STEP_RULE`: no step raises a robot's local F; None: the checkpoint's
@@ -263,17 +263,18 @@ def solve_prop_v1(
         nothing). parallel_s (simulated makespan): the robots' actors run batched in one process
         here, so each step's wall time is attributed evenly, step_s / n per robot (a lower bound on
         a robot acting alone, which loses the batching), plus the setup time / n and the consensus's
-        own parallel_s (popbench.consensus, "Accounting": per ADMM iteration the slowest robot's
-        factorise-and-solve time plus its share of the batched vectorised pass) and the alignment's
-        wall time (one small solve). prop-v2 adds LM's wall time (centralised) to prop-v1's times,
-        also when it starts from prop-v1's cached cell (popbench.harness.refining). extras: actor_s
-        (setup + steps) and consensus_s (alignment + ADMM), the split of wall_s [s]; F_episode, F of
-        the assembled estimate after the episode; F_actor and F_aligned, the same with the robots
-        whose episode did not lower their local objective back at their start (the consensus's
-        input), and after the alignment; F_consensus, F of the consensus's output; kept, "consensus"
-        or "episode" (which of the two is returned); local_F_start and local_F_episode, the robots'
-        local objectives summed, at the start and after the episode; robots_kept_episode, the number
-        of robots that kept their episode's result, and robots_reverted, the others.
+        own parallel_s (popbench.consensus.admm, "Accounting": per ADMM iteration the slowest
+        robot's factorise-and-solve time plus its share of the batched vectorised pass) and the
+        alignment's wall time (one small solve). prop-v2 adds LM's wall time (centralised) to
+        prop-v1's times, also when it starts from prop-v1's cached cell (popbench.harness.refining).
+        extras: actor_s (setup + steps) and consensus_s (alignment + ADMM), the split of wall_s [s];
+        F_episode, F of the assembled estimate after the episode; F_actor and F_aligned, the same
+        with the robots whose episode did not lower their local objective back at their start (the
+        consensus's input), and after the alignment; F_consensus, F of the consensus's output; kept,
+        "consensus" or "episode" (which of the two is returned); local_F_start and local_F_episode,
+        the robots' local objectives summed, at the start and after the episode;
+        robots_kept_episode, the number of robots that kept their episode's result, and
+        robots_reverted, the others.
     Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
         callers pass a Budget for every method); `budget.seconds`, if given, stops the episode
         early.

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from agents.encoder import GraphBatch, GraphEncoder
 from envs.modes import EnvModes
-from popbench.distributed import DistributedProblem
+from popbench.problems.distributed import DistributedProblem
 
 if TYPE_CHECKING:
     from envs.core import PGOCore

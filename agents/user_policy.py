@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
+from popbench.problems.distributed import DistributedProblem
 
 PADDING_OPTIONS = ("max_vertices", "max_edges", "max_degree")
 _FIXED = {"self", "source", "num_agents", "dims", "batch_size", "batch", "seed", "device", "labels"}

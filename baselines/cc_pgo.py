@@ -20,8 +20,8 @@ import dataclasses
 import numpy as np
 
 from baselines.rbcd import MethodOptions
-from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
+from popbench.problems.distributed import DistributedProblem
 
 
 @dataclasses.dataclass(frozen=True)

@@ -2,8 +2,8 @@
 
 What distinguishes ML-PGO from CC-PGO is (1) how the poses are split among the robots: a
 multilevel graph partitioner (coarsen → partition → refine; the paper uses KaHIP presets, here
-METIS via :func:`popbench.partition.partition`) giving balanced parts with few cut edges, and (2)
-an accelerated RBCD whose momentum restarts **adaptively, whenever the objective increases**
+METIS via :func:`popbench.problems.partition.partition`) giving balanced parts with few cut edges,
+and (2) an accelerated RBCD whose momentum restarts **adaptively, whenever the objective increases**
 (Li et al. 2024; by more than a relative 1e-9, ``driver.ADAPTIVE_RESTART_TOLERANCE``, so that
 floating-point noise near convergence does not reset the momentum), instead of every 30
 iterations. Everything else (relaxation, rank 5, lifting the problem's start, local trust-region
@@ -21,9 +21,9 @@ from __future__ import annotations
 import dataclasses
 
 from baselines.rbcd import MethodOptions
-from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result
-from popbench.partition import partition
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.partition import partition
 
 
 @dataclasses.dataclass(frozen=True)

@@ -27,10 +27,10 @@ import time
 import numpy as np
 
 from popbench import datasets, objective
-from popbench.distributed import DistributedProblem
-from popbench.initial import with_start
 from popbench.methods import Budget
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.solvers.initial import with_start
 from popbench.solvers.lm import reference_optimum, solve, solve_graph
 
 REFERENCE_F = {  # eq. 1 with κ/τ weights (docs/conventions.md)

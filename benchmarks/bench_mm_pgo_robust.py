@@ -28,7 +28,7 @@ from popbench.harness.heldout import HELDOUT_SEED_BASE
 from popbench.harness.outliers import corrupted_problem
 from popbench.methods import Budget
 from popbench.outliers import candidate_mask, with_outliers
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 
 def counts(problem, mode: str, kernel: str, iterations: int) -> tuple[int, int, int, float]:

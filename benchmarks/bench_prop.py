@@ -19,7 +19,7 @@ its wall time: the actor episode (the actor's decisions, IncrementalPolicy.act; 
 step, PGOCore.step, of which the Gauss–Newton base step of the chosen edges,
 envs.basestep.chosen_step; the incremental observation, PGOCore.observation_update +
 IncrementalPolicy.observe_update) and the consensus (of which SuperLU's factorisations, splu in
-popbench.consensus_system), measured by
+popbench.consensus.system), measured by
 wrapping those functions with timers for the run.
 
 The actor is prop-v1's default checkpoint (its record in popbench/methods.py); without it, a
@@ -47,7 +47,7 @@ from agents.encoder import GraphBatch
 from agents.methods import DEFAULT_CHECKPOINT, episode_core, run_episode, solve_prop_v1
 from envs.modes import EnvModes
 from popbench.methods import Budget
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 
 def actor_for(path: Path) -> tuple[HybridActor, EnvModes, Path]:
@@ -103,7 +103,7 @@ PHASES = (
     ("actor: observation update", "envs.core", "PGOCore.observation_update"),
     ("env step (PGOCore.step)", "envs.core", "PGOCore.step"),
     ("  of which Gauss–Newton base", "envs.core", "chosen_step"),
-    ("consensus: SuperLU splu", "popbench.consensus_system", "splu"),
+    ("consensus: SuperLU splu", "popbench.consensus.system", "splu"),
 )
 
 

@@ -34,7 +34,7 @@ from envs.sweep import GaussNewtonSweep
 from envs.tree import place_separators
 from popbench import objective
 from popbench.harness.heldout import HELDOUT_SEED_BASE
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 
 def episode(problems, dims, correction: str, place: bool, policy_class) -> tuple[np.ndarray, float]:

@@ -55,10 +55,10 @@ from agents.heldout import (
 )
 from agents.methods import CHECKPOINT_DIR
 from popbench import objective
-from popbench.distributed import DistributedProblem
+from popbench.consensus.reconcile import DEFAULT_CONSENSUS, reconcile
 from popbench.harness.defaults import TABLE1_DATASETS
 from popbench.harness.problems import distributed_problem, optimum
-from popbench.reconcile import DEFAULT_CONSENSUS, reconcile
+from popbench.problems.distributed import DistributedProblem
 
 DATASETS = (*TABLE1_DATASETS, "fr079", "frh")
 FORMER_CHECKPOINT = CHECKPOINT_DIR / "imitation-V2-n7-robust.pt"

@@ -32,10 +32,10 @@ import torch
 
 from agents.heldout import GA_SAC_CHECKPOINT, IMITATION_CHECKPOINT, local_estimates, row_checkpoints
 from popbench import objective
-from popbench.alignment import align_frames
+from popbench.consensus.alignment import align_frames
+from popbench.consensus.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS, reconcile
 from popbench.datasets import DATASETS
 from popbench.harness.problems import distributed_problem
-from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS, reconcile
 
 ROWS = ("gn-sweep", "learned-order", "imitation", "ga-sac", "local-lm")
 

@@ -1,4 +1,4 @@
-"""mm-pgo from a one-pass estimate against mm-pgo from odometry (popbench.warm_start).
+"""mm-pgo from a one-pass estimate against mm-pgo from odometry (popbench.solvers.warm_start).
 
 For each dataset (n robots, METIS seed 0, odometry start, one process, one cell at a time):
 mm-pgo from odometry, local-lm, prop-v1 and the two warm-started rows, each with the relative

@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 from popbench import datasets
-from popbench.distributed import DistributedProblem
-from popbench.initial import with_start
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import with_start
 
 PUBLISHED_OPTIMA = {  # F_chordal*, SE-Sync convention (popbench.datasets.Dataset.chordal_optimum)
     name: entry.chordal_optimum
@@ -26,7 +26,7 @@ TOLERANCE = 1e-3  # a relative gap to the optimum that counts as converged
 
 def split_problem(name: str, robots: int, init: str) -> DistributedProblem:
     """Dataset ``name`` split among ``robots`` robots (the default partition), started from
-    ``init`` (:func:`popbench.initial.with_start`)."""
+    ``init`` (:func:`popbench.solvers.initial.with_start`)."""
     return with_start(DistributedProblem.from_graph(datasets.load(name), robots), init)
 
 

@@ -1,7 +1,7 @@
 """Candidate per-robot rewards scored against what survives the consensus, on held-out problems.
 
 Every robot's episode ends in local copies (owned poses + separator copies); the consensus
-(popbench.reconcile, aligned-admm) then scores the team. The per-robot designs:
+(popbench.consensus.reconcile, aligned-admm) then scores the team. The per-robot designs:
 
 * ``R0``: Σ_r F_r, each robot's local F at its own copies (the current reward; optimum local-lm).
 * ``R1``: Σ_r F_r with the copies held at their owners' estimates, here the problem's start
@@ -49,12 +49,12 @@ from agents.heldout import (
     robots_local_f,
 )
 from popbench import objective
-from popbench.distributed import DistributedProblem
+from popbench.consensus.reconcile import DEFAULT_CONSENSUS, reconcile
 from popbench.harness.heldout import HELDOUT_SEED_BASE
 from popbench.metrics import ate, bootstrap_ci
-from popbench.reconcile import DEFAULT_CONSENSUS, reconcile
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 from popbench.solvers.local_lm import copy_priors, local_optima, relative_priors
-from popbench.synthetic import make_problem
 
 WEIGHTS = (0.1, 1.0)
 RELATIVE_WEIGHTS = (1.0, 100.0)

@@ -2,9 +2,9 @@
 PettingZoo (:class:`envs.pettingzoo_env.PGOParallelEnv`) over one batched torch core
 (:mod:`envs.core`).
 
-Problems come from the synthetic generator (:func:`popbench.synthetic.make_problem`, a new seeded
-problem every episode) or from a dataset (``dataset="intel"`` or a path: the same problem every
-episode, split among ``robots`` by :meth:`DistributedProblem.from_graph`).
+Problems come from the synthetic generator (:func:`popbench.problems.synthetic.make_problem`, a new
+seeded problem every episode) or from a dataset (``dataset="intel"`` or a path: the same problem
+every episode, split among ``robots`` by :meth:`DistributedProblem.from_graph`).
 
 Training outliers (``outlier_rate_max`` > 0, synthetic problems only): every drawn problem gets
 outliers injected with the project's model (:func:`popbench.outliers.with_outliers`, the default
@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from envs.observation import Dimensions
-from popbench.distributed import DistributedProblem
+from popbench.problems.distributed import DistributedProblem
 
 if TYPE_CHECKING:
     from envs.pettingzoo_env import PGOParallelEnv
@@ -49,8 +49,8 @@ if TYPE_CHECKING:
 PROBE_PROBLEMS = 32
 PROBE_SEED = 2**31 - 1  # probe seeds PROBE_SEED + k: apart from the training streams
 PADDING_MARGIN = 1.25
-# The "SLAM" maps (popbench.slam_maps) draw their loop density and size per map, so their local
-# graphs vary more: at 40 poses per robot the largest local edge count over 600 maps was 180,
+# The "SLAM" maps (popbench.problems.slam_maps) draw their loop density and size per map, so their
+# local graphs vary more: at 40 poses per robot the largest local edge count over 600 maps was 180,
 # over the 32 probes 128 (2026-12-04); 512 probes cover that tail.
 SLAM_PROBE_PROBLEMS = 512
 
@@ -86,13 +86,13 @@ def make_problem_source(
         dataset: a registered dataset name or a g2o/TORO path; ``None`` for synthetic problems.
         poses_per_robot, loop_ratio: synthetic generator options.
         partition: ``"metis"`` or ``"contiguous"`` (datasets only).
-        start: dataset initial estimate, a name of :data:`popbench.initial.STARTS`
+        start: dataset initial estimate, a name of :data:`popbench.solvers.initial.STARTS`
             (``"odometry"``, the composition, default; ``"chordal"``; ``"given"``, the file's).
         max_vertices, max_edges, max_degree: padding maxima overriding the defaults.
         outlier_rate_max: the largest training outlier rate (module docstring; synthetic only).
         start_noise: > 0: synthetic problems start off their odometry, every measurement of the
             composition perturbed by that many standard deviations
-            (:func:`popbench.synthetic.perturbed_start`; the sanity task).
+            (:func:`popbench.problems.synthetic.perturbed_start`; the sanity task).
     """
     if dataset is None:
         source = _Synthetic(
@@ -123,10 +123,10 @@ def dataset_problem(
     dataset: str, robots: int, partition: str = "metis", start: str = "odometry"
 ) -> DistributedProblem:
     """A dataset split among ``robots`` (:meth:`DistributedProblem.from_graph`, seed 0),
-    carrying the ``start`` estimate (:func:`popbench.initial.with_start`; default the odometry
-    composition, ``"given"`` the file's poses)."""
+    carrying the ``start`` estimate (:func:`popbench.solvers.initial.with_start`; default the
+    odometry composition, ``"given"`` the file's poses)."""
     from popbench.datasets import load
-    from popbench.initial import with_start
+    from popbench.solvers.initial import with_start
 
     graph = with_start(load(dataset), start)
     return DistributedProblem.from_graph(graph, robots, partition, start=start)
@@ -134,8 +134,8 @@ def dataset_problem(
 
 @dataclasses.dataclass(frozen=True)
 class _Synthetic:
-    """A problem source drawing :func:`popbench.synthetic.make_problem` problems by seed, started
-    off their odometry when ``start_noise`` > 0, with outliers at a rate ``U(0,
+    """A problem source drawing :func:`popbench.problems.synthetic.make_problem` problems by seed,
+    started off their odometry when ``start_noise`` > 0, with outliers at a rate ``U(0,
     outlier_rate_max)`` per problem when ``outlier_rate_max`` > 0 (the start, the rate and the
     corruption seeded by the problem's seed)."""
 
@@ -147,7 +147,7 @@ class _Synthetic:
     start_noise: float = 0.0
 
     def __call__(self, seed: int) -> DistributedProblem:
-        from popbench.synthetic import make_problem, perturbed_start
+        from popbench.problems.synthetic import make_problem, perturbed_start
 
         problem = make_problem(
             self.robots, self.noise, self.poses_per_robot, self.loop_ratio, seed=seed

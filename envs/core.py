@@ -5,12 +5,13 @@ env (:mod:`envs.torchrl_env`, any ``B``) and the PettingZoo env (:mod:`envs.pett
 ``B = 1``); what the actor observes of it is read by :mod:`envs.readout`.
 
 State layout: local copies
-    Agent ``i`` holds its local graph (:class:`popbench.distributed.LocalGraph`: owned vertices,
-    then separator copies; every edge with at least one owned endpoint) and its *own copy* of
-    the estimates of those vertices. A separator pose is therefore duplicated in several agents'
+    Agent ``i`` holds its local graph (:class:`popbench.problems.distributed.LocalGraph`: owned
+    vertices, then separator copies; every edge with at least one owned endpoint) and its *own copy*
+    of the estimates of those vertices. A separator pose is therefore duplicated in several agents'
     copies and a move by one agent never touches another agent's copy: simultaneous actions never
     conflict, each agent's step costs O(degree of the moved vertex), and reconciling the copies
-    is the consensus step that runs after the episode (paper Fig. 1; :mod:`popbench.consensus`).
+    is the consensus step that runs after the episode (paper Fig. 1;
+    :mod:`popbench.consensus.admm`).
 
 Padding: every agent's graph is padded to ``V`` vertices, ``E`` edges and ``D`` incident edges per
 vertex (:class:`Dimensions`); one extra *trash* vertex (index ``V``) and edge slot (index ``E``)
@@ -73,9 +74,9 @@ from envs.readout import ReadoutModes, chosen_base_observation, observation_chan
 from envs.state import DERIVED_FROM, CoreState, check_packed, derived_entries, empty_dynamics
 from envs.team import TeamReward
 from envs.tree import pack_trees, place_separators
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs
+from popbench.problems.distributed import DistributedProblem
 
 DEFAULT_DELTA_MAX = (0.5, 0.5, 0.3)  # (δx [m], δy [m], δθ [rad])
 EPSILON = 1e-6  # ε of the reward's normalisation and terminal log-ratio

@@ -36,7 +36,7 @@ import torch
 from envs.core import PGOCore
 from envs.geometry import _gather_rows, between, wrap
 from envs.tree import place_separators
-from popbench.distributed import DistributedProblem
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.local_lm import local_optima as solve_local_graphs
 
 LM_ITERATIONS = 200

@@ -16,9 +16,9 @@ import numpy as np
 
 from envs.features import EDGE, EDGE_COLUMN, NODE
 from popbench import se2
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.objective import weights
+from popbench.problems.distributed import DistributedProblem
 
 REWARDS = ("localisation", "F")
 NUM_KINDS = 4

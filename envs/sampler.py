@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 
 from envs.observation import Dimensions, check_fits, fits
-from popbench.distributed import DistributedProblem
+from popbench.problems.distributed import DistributedProblem
 
 ProblemSource = Callable[[int], DistributedProblem]
 

@@ -5,11 +5,11 @@ configs) with its environment options, its problem generator and its evaluation 
 --task ...`` read them; ``popbench tasks`` lists them. docs/environment.md ("Benchmark tasks")
 says why each exists and what separates them.
 
-Every task draws synthetic problems (:func:`popbench.synthetic.make_problem`, a new seeded problem
-every episode, :mod:`envs.sampler`); its evaluation protocol is that of ``popbench run heldout``:
-``problems`` held-out problems of the task's generator (seeds disjoint from every training
-stream), each robot's local estimate brought through the consensus, scored by the global F and
-the ATE (docs/harness.md).
+Every task draws synthetic problems (:func:`popbench.problems.synthetic.make_problem`, a new seeded
+problem every episode, :mod:`envs.sampler`); its evaluation protocol is that of ``popbench run
+heldout``: ``problems`` held-out problems of the task's generator (seeds disjoint from every
+training stream), each robot's local estimate brought through the consensus, scored by the global F
+and the ATE (docs/harness.md).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ class Task:
             ``"localisation"`` where the problems have ground truth, else ``"F"``.
         terminal_bonus: the terminal log-ratio bonus on the episode's last step.
         robots: agents ``n`` per problem; noise: ``"V1"``/``"V2"``/``"V3"``, or ``"SLAM"``
-            (SLAM-shaped maps, :mod:`popbench.slam_maps`).
+            (SLAM-shaped maps, :mod:`popbench.problems.slam_maps`).
         poses_per_robot: the synthetic generator's map size.
         outlier_rate_max: training problems get outliers at a rate ``U(0, outlier_rate_max)``.
         eval_problems: held-out problems of the evaluation protocol.
@@ -112,7 +112,7 @@ TASKS: dict[str, Task] = {
             ACTORS,
             name="noisy",
             summary="the actors' task at the V3 noise level, the highest of "
-            "popbench.synthetic.NOISE_LEVELS",
+            "popbench.problems.synthetic.NOISE_LEVELS",
             noise="V3",
         ),
         dataclasses.replace(
@@ -135,7 +135,7 @@ TASKS: dict[str, Task] = {
             ACTORS,
             name="slam-maps",
             summary="the actors' task on single-trajectory SLAM-shaped maps cut by METIS "
-            "(popbench.slam_maps; 40-80 poses per robot)",
+            "(popbench.problems.slam_maps; 40-80 poses per robot)",
             noise="SLAM",
             poses_per_robot=40,
         ),

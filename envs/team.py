@@ -6,12 +6,12 @@ episode ends, the same terminal reward
     r_T = max(−1, 1 − F_c(x_T) / F_c(x_0)),
 
 where F_c(x) is eq. 1 of the global estimate that the default consensus
-(:func:`popbench.reconcile.reconcile`: frame alignment, then 200 ADMM iterations) makes of the
-robots' local estimates x, x_0 those at the episode's start and x_T those at its end: the drop in
-the tables' metric that the team's corrections caused, as a share of the start's. Every other step
-pays 0, so the credit for the team's result must be assigned over the whole episode and across
-the robots: the credit-assignment problem of cooperative MARL. ``"consensus+shaping"`` adds the
-per-robot local-F reward of every step (the actors' task's) on top; ``"none"`` is that reward
+(:func:`popbench.consensus.reconcile.reconcile`: frame alignment, then 200 ADMM iterations) makes
+of the robots' local estimates x, x_0 those at the episode's start and x_T those at its end: the
+drop in the tables' metric that the team's corrections caused, as a share of the start's. Every
+other step pays 0, so the credit for the team's result must be assigned over the whole episode and
+across the robots: the credit-assignment problem of cooperative MARL. ``"consensus+shaping"`` adds
+the per-robot local-F reward of every step (the actors' task's) on top; ``"none"`` is that reward
 alone. The bound −1 keeps a diverging episode's reward on the scale of a good one's.
 
 Cost: one consensus per episode start and one per end (≈ 0.45 s each at n = 7, 60 poses per
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from popbench import objective
-from popbench.reconcile import reconcile
+from popbench.consensus.reconcile import reconcile
 
 
 def consensus_objective(problem, local_poses: list[np.ndarray]) -> float:

@@ -26,8 +26,8 @@ from scipy.sparse import csgraph
 from scipy.sparse.linalg import spsolve_triangular
 
 from popbench import se2
-from popbench.distributed import DistributedProblem, LocalGraph
 from popbench.graph import EdgeKind, PoseGraph
+from popbench.problems.distributed import DistributedProblem, LocalGraph
 
 ODOMETRY_KINDS = (EdgeKind.ODOMETRY, EdgeKind.INTER_RELATIVE)
 

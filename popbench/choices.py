@@ -2,9 +2,10 @@
 once: the modules that implement a choice import its list from here (no NumPy, so ``popbench
 --help`` stays fast).
 
-* :data:`NOISE_LEVELS` — the synthetic problems' noise levels (:mod:`popbench.synthetic`), and
-  :data:`NOISES` — those and :data:`SLAM_LEVEL`, the SLAM-shaped maps (:mod:`popbench.slam_maps`);
-* :data:`PARTITIONS` — how poses are split among robots (:mod:`popbench.partition`);
+* :data:`NOISE_LEVELS` — the synthetic problems' noise levels (:mod:`popbench.problems.synthetic`),
+  and :data:`NOISES` — those and :data:`SLAM_LEVEL`, the SLAM-shaped maps
+  (:mod:`popbench.problems.slam_maps`);
+* :data:`PARTITIONS` — how poses are split among robots (:mod:`popbench.problems.partition`);
 * :data:`ROBUST_KERNELS` — the robust kernels of MM-PGO (:mod:`baselines.robust`), besides
   ``"none"``;
 * :data:`DEFAULT_GROUP_SIZE` — the false loop closures per group of the vertigo-grouped outlier
@@ -25,7 +26,8 @@ NOISE_LEVELS: dict[str, tuple[float, float, float]] = {
     "V2": (0.10, 0.14, 0.18),
     "V3": (0.14, 0.18, 0.22),
 }
-SLAM_LEVEL = "SLAM"  # the level under which popbench.synthetic.make_problem draws SLAM maps
+# the level under which popbench.problems.synthetic.make_problem draws SLAM maps
+SLAM_LEVEL = "SLAM"
 NOISES = (*NOISE_LEVELS, SLAM_LEVEL)
 PARTITIONS = ("metis", "contiguous")
 ROBUST_KERNELS = ("huber", "gm", "welsch")

@@ -1,8 +1,8 @@
 """The one method interface and its registry of method records.
 
 Every method is a function ``solve(problem, budget, **options) -> Result`` over a
-:class:`~popbench.distributed.DistributedProblem`, starting from the problem's start
-(``problem.graph.poses``, see :mod:`popbench.initial`). Each registered method is one
+:class:`~popbench.problems.distributed.DistributedProblem`, starting from the problem's start
+(``problem.graph.poses``, see :mod:`popbench.solvers.initial`). Each registered method is one
 :class:`MethodRecord`: its solve function as a ``"module:function"`` string, imported lazily (so
 the core never imports ``baselines``, ``agents`` or ``envs``, and ``popbench --help`` stays
 fast), and the facts the harness, the cache, the reports and the CLI read — its table label, the
@@ -20,7 +20,7 @@ the graph's ``FIX`` poses (:func:`hold_fixed`).
 Example:
     >>> from popbench.methods import Budget, get_method
     >>> from popbench.objective import evaluate
-    >>> from popbench.synthetic import make_problem
+    >>> from popbench.problems.synthetic import make_problem
     >>> problem = make_problem(robots=3, poses_per_robot=20, seed=0)
     >>> result = get_method("lm")(problem, Budget(iterations=20))
     >>> bool(result.F < evaluate(problem.graph, problem.graph.poses).F)
@@ -272,10 +272,10 @@ METHODS: dict[str, MethodRecord] = {
             refines="prop-v1",
         ),
         MethodRecord("local-lm", "popbench.solvers.local_lm:solve", "local-lm"),
-        # mm-pgo started from a one-pass estimate (popbench.warm_start; Table I at n = 7)
+        # mm-pgo started from a one-pass estimate (popbench.solvers.warm_start; Table I at n = 7)
         MethodRecord(
             "prop-v1+mm-pgo",
-            "popbench.warm_start:solve_prop_v1_mm_pgo",
+            "popbench.solvers.warm_start:solve_prop_v1_mm_pgo",
             "Prop-V1+MM-PGO",
             checkpoint=ACTOR_CHECKPOINT,
             seed_checkpoints=ACTOR_SEED_CHECKPOINTS,
@@ -284,7 +284,7 @@ METHODS: dict[str, MethodRecord] = {
         ),
         MethodRecord(
             "local-lm+mm-pgo",
-            "popbench.warm_start:solve_local_lm_mm_pgo",
+            "popbench.solvers.warm_start:solve_local_lm_mm_pgo",
             "local-lm+MM-PGO",
             refines="local-lm",
         ),

@@ -19,7 +19,7 @@ serve each of the three costs (:data:`COSTS`).
 
 Example:
     >>> from popbench.objective import evaluate
-    >>> from popbench.synthetic import make_problem
+    >>> from popbench.problems.synthetic import make_problem
     >>> graph = make_problem(robots=2, poses_per_robot=10, seed=0).graph
     >>> costs = evaluate(graph)  # at graph.poses, the odometry start
     >>> bool(costs.F > evaluate(graph, graph.ground_truth).F > 0)

@@ -40,9 +40,9 @@ import numpy as np
 
 from popbench import se2
 from popbench.choices import DEFAULT_GROUP_SIZE
-from popbench.distributed import DistributedProblem
 from popbench.errors import DataFormatError, ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph, robot_kinds, single_robot_kinds
+from popbench.problems.distributed import DistributedProblem
 
 CANDIDATE_SETS: dict[str, tuple[EdgeKind, ...]] = {
     "loops": (EdgeKind.LOOP, EdgeKind.INTER_LOOP),
@@ -119,11 +119,11 @@ def with_outliers(
     """``problem`` with outliers injected (:func:`inject_outliers`) and ``outlier_mask`` set.
 
     The problem's start is made again from the corrupted measurements
-    (:func:`popbench.initial.with_start`: the odometry start is unchanged with ``"loops"``;
+    (:func:`popbench.solvers.initial.with_start`: the odometry start is unchanged with ``"loops"``;
     with ``"paper"`` a corrupted cut odometry edge is part of the odometry chain), except a
     ``"given"`` start, whose poses are kept.
     """
-    from popbench.initial import with_start
+    from popbench.solvers.initial import with_start
 
     graph, mask = inject_outliers(problem, rate, seed, candidates)
     corrupted = DistributedProblem(graph, problem.start, mask)

@@ -1,4 +1,4 @@
-"""Rigid alignment of the robots' frames before the consensus (popbench.alignment)."""
+"""Rigid alignment of the robots' frames before the consensus (popbench.consensus.alignment)."""
 
 from __future__ import annotations
 
@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from popbench import se2
-from popbench.alignment import align_frames, frame_jacobians, inter_robot_graph, moved
-from popbench.distributed import DistributedProblem
+from popbench.consensus.alignment import align_frames, frame_jacobians, inter_robot_graph, moved
 from popbench.objective import linearise, objective
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.solvers.lm import solve_graph
-from popbench.synthetic import make_problem
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from envs.core import PGOCore
 from envs.geometry import _gather_rows, residuals
 from envs.observation import Dimensions
 from envs.tree import lowest_common_ancestors, spanning_tree
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 16}
 MODES = [  # correction modes with the base step, metric and whitened

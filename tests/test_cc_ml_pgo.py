@@ -21,11 +21,11 @@ from baselines.rbcd import (
 )
 from popbench import objective, se2
 from popbench.datasets import DATASETS
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.initial import with_start
 from popbench.methods import Budget, get_method
-from popbench.partition import partition, partition_report
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.partition import partition, partition_report
+from popbench.solvers.initial import with_start
 
 MIT_OPTIMUM = DATASETS["mit"].chordal_optimum  # F_chordal*, SE-Sync convention
 

@@ -13,12 +13,12 @@ from conftest import require_dataset
 from scipy.optimize import least_squares
 
 from popbench import objective, se2
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph
-from popbench.initial import with_start
 from popbench.methods import Budget, get_method
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.solvers.initial import with_start
 from popbench.solvers.lm import reference_optimum, solve, solve_graph
 
 # Independent reference values of F (recomputed beside SE-Sync, IJRR 2019, Table 1).

@@ -345,8 +345,8 @@ def test_solve_shows_progress_on_a_terminal_only() -> None:
 def test_every_iterative_method_reports_each_round(small_graph, method: str) -> None:
     """The progress bar counts real rounds: each method calls Budget.round_done once per round
     (prop-v1: per actor step), with the running count."""
-    from popbench.distributed import DistributedProblem
     from popbench.methods import Budget, get_method
+    from popbench.problems.distributed import DistributedProblem
 
     problem = DistributedProblem.from_graph(small_graph, 3)
     seen: list[int] = []

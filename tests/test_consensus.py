@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from popbench.consensus import admm_consensus, minus
-from popbench.distributed import DistributedProblem
+from popbench.consensus.admm import admm_consensus, minus
 from popbench.errors import ValueRangeError
 from popbench.objective import objective
-from popbench.synthetic import make_problem
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 
 
 def whitened_residuals(graph, poses: np.ndarray) -> np.ndarray:
@@ -128,7 +128,7 @@ def test_invalid_arguments(problem_and_optimum):
 def test_team_system_is_block_diagonal_by_robot(problem_and_optimum):
     """The batched x-update system couples no two robots: every stored entry joins unknowns of
     one robot, each robot's unknowns are one contiguous range, and the gauge row is absent."""
-    from popbench.consensus import _team, _TeamSystem
+    from popbench.consensus.admm import _team, _TeamSystem
 
     problem, optimum = problem_and_optimum
     team = _team(problem, problem.split(optimum))

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from conftest import require_dataset
 
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind
 from popbench.objective import objective
-from popbench.partition import contiguous
-from popbench.synthetic import make_problem
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.partition import contiguous
+from popbench.problems.synthetic import make_problem
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from envs.core import PGOCore
 from envs.observation import Dimensions, pack_problem
 from envs.state import PACKED, CoreState, check_packed, names
 from envs.tree import pack_trees
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 OUTSIDE_ENVS = ("agents", "popbench", "benchmarks")

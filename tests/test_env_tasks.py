@@ -18,7 +18,7 @@ from envs.tasks import ACTORS, PAPER, TASKS, get_task
 from popbench.cli import main
 from popbench.cli.train import train_config
 from popbench.errors import ValueRangeError
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "environment.md"
 SMALL = {"robots": 3, "poses_per_robot": 12}  # overrides that keep the probes quick

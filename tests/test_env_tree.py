@@ -17,8 +17,8 @@ from popbench import objective, se2
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind
 from popbench.outliers import with_outliers
+from popbench.problems.synthetic import make_problem
 from popbench.solvers.lm import solve_graph
-from popbench.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 16}
 MODES = [

@@ -11,10 +11,10 @@ from envs import make_pettingzoo_env, make_torchrl_env
 from envs.core import EPSILON, PGOCore
 from envs.observation import Dimensions, pack_problem
 from popbench import objective, se2
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import make_graph
-from popbench.synthetic import make_problem
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 16}
 

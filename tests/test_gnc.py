@@ -8,11 +8,11 @@ import pytest
 from conftest import require_dataset
 
 from popbench import objective, se2
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, make_graph
 from popbench.methods import Budget, get_method
 from popbench.outliers import candidate_mask, precision_recall
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers import gnc
 from popbench.solvers.lm import solve_graph
 

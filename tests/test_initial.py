@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
-from popbench.initial import STARTS, check_start, initial_estimate, with_start
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.solvers.initial import STARTS, check_start, initial_estimate, with_start
 
 
 def test_each_start_makes_its_poses(small_graph) -> None:

@@ -170,10 +170,10 @@ def test_critic_probe_sees_a_critic_that_learned_the_one_step_reward(trained) ->
 
 
 # The sanity task: one robot, a 10-pose chain with its loop closures, started off its odometry
-# by 2 σ per measurement (popbench.synthetic.perturbed_start), no base step: the best correction
-# of each step undoes its perturbation, which the step's residual shows, and δ := 0 changes
-# nothing. GA-SAC from scratch (the tiny actor, ~1,000 updates, ~1 min of one core) must learn a
-# state-dependent correction that follows the expert's and lowers F. Measured over training
+# by 2 σ per measurement (popbench.problems.synthetic.perturbed_start), no base step: the best
+# correction of each step undoes its perturbation, which the step's residual shows, and δ := 0
+# changes nothing. GA-SAC from scratch (the tiny actor, ~1,000 updates, ~1 min of one core) must
+# learn a state-dependent correction that follows the expert's and lowers F. Measured over training
 # seeds 0, 1, 2 (docs/training.md): correlation with the expert 0.94 / 0.92 / 0.83, spread
 # 1.5 / 1.4 / 1.8 σ, F reduction 0.78 / 0.82 / 0.70; at 4,096 frames seed 2 still raised F.
 SANITY_TASK = dataclasses.replace(TASK, base="none")

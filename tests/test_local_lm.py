@@ -1,4 +1,4 @@
-"""local-lm (every robot's local optimum, then the consensus) and popbench.reconcile."""
+"""local-lm (every robot's local optimum, then the consensus) and popbench.consensus.reconcile."""
 
 from __future__ import annotations
 
@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from popbench import objective, se2
-from popbench.distributed import DistributedProblem
+from popbench.consensus.reconcile import CONSENSUS_MODES, reconcile
 from popbench.errors import ValueRangeError
-from popbench.reconcile import CONSENSUS_MODES, reconcile
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 from popbench.solvers import lm, local_lm
-from popbench.synthetic import make_problem
 
 
 @pytest.fixture(scope="module")

@@ -12,12 +12,12 @@ from baselines.mm_pgo import driver, edges, restart
 from baselines.mm_pgo.team import TeamSystem
 from popbench import objective, se2
 from popbench.datasets import DATASETS
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, make_graph
-from popbench.initial import with_start
 from popbench.methods import Budget, get_method
 from popbench.outliers import candidate_mask, precision_recall
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import with_start
 
 MIT_OPTIMUM = DATASETS["mit"].chordal_optimum  # SE-Sync-convention F_chordal*
 

@@ -20,8 +20,8 @@ from conftest import require_dataset
 
 from popbench import methods, objective
 from popbench.datasets import DATASETS
+from popbench.problems.synthetic import make_problem
 from popbench.status import NeverWorse
-from popbench.synthetic import make_problem
 
 FREIBURG = ("frh", "fr079")  # registered; not in the team's data folder (CI skips them)
 CHEAP = {  # method: (budget iterations, options): a reduced budget, enough to move every dataset

@@ -10,7 +10,7 @@ import torch
 
 from envs.core import PGOCore
 from envs.observation import Dimensions
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 MODES = list(itertools.product(("pose", "subtree"), ("paper", "invariant"), ("metric", "whitened")))
 

@@ -28,10 +28,10 @@ from agents.gate_training import fit_outlier_gate
 from agents.methods import cached_actor, run_episode, solve_prop_v1
 from agents.outlier_gate import GATE_THRESHOLD, f1_threshold, reconciled_gate, reconciled_state
 from popbench.cli import main
+from popbench.consensus.reconcile import reconcile
 from popbench.graph import EdgeKind
 from popbench.outliers import with_outliers
-from popbench.reconcile import reconcile
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 from tests.conftest import tiny_model
 
 TINY = tiny_model()

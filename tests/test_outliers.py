@@ -20,7 +20,7 @@ from popbench.outliers import (
     read_outlier_mask,
     with_outliers,
 )
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 ODOMETRY_KINDS = (EdgeKind.ODOMETRY, EdgeKind.INTER_RELATIVE)
 

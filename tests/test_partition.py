@@ -8,7 +8,7 @@ from conftest import require_dataset
 
 from popbench.errors import PopbenchError, ValueRangeError
 from popbench.graph import EdgeKind, make_graph
-from popbench.partition import (
+from popbench.problems.partition import (
     adjacency,
     assign,
     canonical_labels,

@@ -15,8 +15,8 @@ from popbench.cli import main
 from popbench.harness.cache import cell_key, provenance
 from popbench.harness.reports import number
 from popbench.harness.table1 import Table1Config
-from popbench.initial import with_start
 from popbench.metrics import mean_ci
+from popbench.solvers.initial import with_start
 
 
 def solve_toy(problem, budget, seed: int = 0, step: float = 0.5, **_) -> methods.Result:

@@ -9,7 +9,7 @@ import pytest
 from envs.observation import Dimensions, fits
 from envs.sampler import ProblemSampler
 from popbench.errors import ValueRangeError
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 
 def source(seed: int):  # noqa: ANN201

@@ -36,8 +36,8 @@ def problems(count: int) -> pd.DataFrame:
 
 
 def test_optimum_is_lm_s_reference_and_the_score_runs_from_gn_sweep_to_it() -> None:
+    from popbench.problems.synthetic import make_problem
     from popbench.solvers.lm import reference_optimum
-    from popbench.synthetic import make_problem
 
     keys = problems(2)
     best = optimum(keys)

@@ -1,15 +1,15 @@
-"""Single-trajectory SLAM-shaped maps cut into robots (popbench.slam_maps)."""
+"""Single-trajectory SLAM-shaped maps cut into robots (popbench.problems.slam_maps)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from popbench import slam_maps, synthetic
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, odometry_composition, robot_kinds
 from popbench.objective import g2o_errors
-from popbench.partition import metis
+from popbench.problems import slam_maps, synthetic
+from popbench.problems.partition import metis
 
 SEEDS = range(12)
 

@@ -12,12 +12,12 @@ from conftest import grid_g2o, require_dataset
 from scipy.optimize import least_squares
 
 from popbench import cli, objective
-from popbench.distributed import DistributedProblem
 from popbench.errors import PopbenchError
-from popbench.initial import with_start
 from popbench.methods import METHODS, Budget, MethodRecord, Result, get_method
 from popbench.outliers import add_false_loop_closures, precision_recall
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.solvers.initial import with_start
 from popbench.solvers.lm import solve_graph
 from popbench.status import Status
 
@@ -237,7 +237,7 @@ def test_fix_poses_refused_by_the_command_exit_2(
 def test_fix_lines_hold_their_poses_bitwise_through_the_command(
     capsys: pytest.CaptureFixture, tmp_path, method: str, fix: str
 ) -> None:
-    from popbench.io import read_graph
+    from popbench.io.read import read_graph
 
     path = grid_g2o(tmp_path / "grid.g2o")
     path.write_text(path.read_text() + f"FIX {fix}\n")

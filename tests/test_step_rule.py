@@ -17,7 +17,7 @@ from envs.expert import Expert
 from envs.modes import NONMONOTONE_WINDOW, TRAJECTORY_MODES, EnvModes
 from popbench import objective
 from popbench.errors import ValueRangeError
-from popbench.synthetic import make_problem
+from popbench.problems.synthetic import make_problem
 
 SMALL = {"robots": 3, "poses_per_robot": 20}
 TASKS = {

@@ -9,7 +9,7 @@ from popbench import se2
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, odometry_composition
 from popbench.objective import residuals
-from popbench.synthetic import MIN_LOOP_GAP, NOISE_LEVELS, make_problem
+from popbench.problems.synthetic import MIN_LOOP_GAP, NOISE_LEVELS, make_problem
 
 
 def test_same_seed_same_problem_other_seed_other_problem():
@@ -100,7 +100,7 @@ def test_invalid_arguments(kwargs):
 
 
 def test_perturbed_start_moves_each_odometry_step_by_its_scale_in_sigmas() -> None:
-    from popbench.synthetic import perturbed_start
+    from popbench.problems.synthetic import perturbed_start
 
     problem = make_problem(1, "V2", 400, loop_ratio=0.0, seed=3)
     assert np.allclose(perturbed_start(problem, 0.0, 1).graph.poses, problem.graph.poses)

@@ -1,6 +1,7 @@
 """The team task (envs.team, envs.tasks "team"): every robot is paid, at the episode's end, the
-drop in F after the consensus, checked against `popbench.reconcile` and `objective` called here
-directly; with shaping, the local-F rewards on top; trained on and scored like any checkpoint."""
+drop in F after the consensus, checked against `popbench.consensus.reconcile` and `objective`
+called here directly; with shaping, the local-F rewards on top; trained on and scored like any
+checkpoint."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ from agents.config import PRESETS, with_task
 from agents.trainer import train
 from envs.tasks import ACTORS, get_task
 from popbench import objective
+from popbench.consensus.reconcile import reconcile
 from popbench.errors import ValueRangeError
-from popbench.reconcile import reconcile
 
 SMALL = {"robots": 3, "poses_per_robot": 12}
 

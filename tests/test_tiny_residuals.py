@@ -10,9 +10,9 @@ from conftest import require_dataset
 from baselines import mm_pgo
 from baselines.rbcd import relaxation
 from popbench import se2
-from popbench.distributed import DistributedProblem
-from popbench.initial import with_start
 from popbench.methods import Budget, get_method
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import with_start
 
 
 def _resampled(graph, sigma: float, seed: int = 0):

@@ -1,4 +1,4 @@
-"""mm-pgo started from a one-pass estimate (popbench.warm_start) and its Table I cells."""
+"""mm-pgo started from a one-pass estimate (popbench.solvers.warm_start) and its Table I cells."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from popbench import objective
-from popbench.distributed import DistributedProblem
 from popbench.harness.table1 import Table1Config, cell_specs
 from popbench.methods import METHODS, Budget, get_method
-from popbench.synthetic import make_problem
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.synthetic import make_problem
 
 BUDGET = Budget(iterations=60)
 

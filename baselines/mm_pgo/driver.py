@@ -11,7 +11,7 @@ seen (never above the start; docs/mm_pgo.md).
 Example:
     >>> from popbench.methods import Budget
     >>> from popbench.objective import evaluate
-    >>> from popbench.synthetic import make_problem
+    >>> from popbench.problems.synthetic import make_problem
     >>> from baselines.mm_pgo import solve
     >>> problem = make_problem(robots=3, poses_per_robot=20, seed=0)
     >>> result = solve(problem, Budget(iterations=50))
@@ -31,11 +31,11 @@ from baselines.mm_pgo.restart import RestartState
 from baselines.mm_pgo.robust_weights import ROBUST_MODES, edge_weights, robust_costs
 from baselines.mm_pgo.team import TeamSystem
 from popbench import objective, se2
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.methods import Budget, Result
 from popbench.outliers import precision_recall
+from popbench.problems.distributed import DistributedProblem
 
 
 def gauge_anchors(graph: PoseGraph) -> np.ndarray:

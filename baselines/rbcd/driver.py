@@ -11,7 +11,7 @@ each iteration. The acceleration, restarts and accounting: :func:`run_rbcd`; the
 
 Example:
     >>> from popbench.methods import Budget
-    >>> from popbench.synthetic import make_problem
+    >>> from popbench.problems.synthetic import make_problem
     >>> from baselines.rbcd import MethodOptions
     >>> problem = make_problem(robots=3, poses_per_robot=20, seed=0)
     >>> start = problem.graph.poses

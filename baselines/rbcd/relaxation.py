@@ -15,7 +15,7 @@ and ``2 f(X) = F_chordal`` when ``r = 2`` and the ``Y_i`` are rotations (dpgo an
 
 Example:
     >>> import numpy as np
-    >>> from popbench.synthetic import make_problem
+    >>> from popbench.problems.synthetic import make_problem
     >>> from popbench.objective import chordal_objective
     >>> from baselines.rbcd.relaxation import apply_q, connection_laplacian, lift, relaxed_cost
     >>> graph = make_problem(robots=2, poses_per_robot=10, seed=0).graph

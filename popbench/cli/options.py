@@ -144,8 +144,8 @@ def rates(text: str) -> tuple[float, ...]:
 
 
 def start(value: str) -> str:
-    """``--init``: one of :data:`popbench.initial.STARTS`."""
-    from popbench.initial import check_start
+    """``--init``: one of :data:`popbench.solvers.initial.STARTS`."""
+    from popbench.solvers.initial import check_start
 
     return check_start(value, "--init")
 

@@ -356,14 +356,14 @@ def heldout_command(
     consensus: str | None = typer.Option(
         None,
         help="The consensus every row goes through: admm | aligned-admm (default: the one "
-        "prop-v1 and local-lm use, popbench.reconcile.DEFAULT_CONSENSUS).",
+        "prop-v1 and local-lm use, popbench.consensus.reconcile.DEFAULT_CONSENSUS).",
         show_default=False,
     ),
     consensus_iterations: int = typer.Option(
         None,
         min=1,
         help="The consensus's ADMM iterations at most (default: the tables' 200, "
-        "popbench.reconcile.DEFAULT_CONSENSUS_ITERATIONS); more shows what a converged "
+        "popbench.consensus.reconcile.DEFAULT_CONSENSUS_ITERATIONS); more shows what a converged "
         "consensus keeps of each row.",
         show_default=False,
     ),
@@ -418,6 +418,11 @@ def heldout_command(
     problem by problem, with 95 % CIs; a --policy row against no-op, gn-sweep, imitation,
     ga-sac and local-lm), heldout.md, heldout.png/.pdf and manifest.json.
     """
+    from popbench.consensus.reconcile import (
+        CONSENSUS_MODES,
+        DEFAULT_CONSENSUS,
+        DEFAULT_CONSENSUS_ITERATIONS,
+    )
     from popbench.harness.heldout import (
         ROW_ALIASES,
         ROWS,
@@ -426,7 +431,6 @@ def heldout_command(
         run_heldout,
         summary_json,
     )
-    from popbench.reconcile import CONSENSUS_MODES, DEFAULT_CONSENSUS, DEFAULT_CONSENSUS_ITERATIONS
 
     if policy is None and (policy_arg, policy_name, policy_env) != (None, None, None):
         raise PopbenchError("--policy-arg, --policy-name and --policy-env need --policy")

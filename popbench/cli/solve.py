@@ -175,13 +175,13 @@ def solve_record(
     ``{"edge": index, "i": tail id, "j": head id}`` (the order and ids of the file's edge
     lines); None for a method that flags nothing (no mask).
 
-    The problem carries the ``init`` start (a name of :data:`popbench.initial.STARTS`) and the
-    method starts from it. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since
+    The problem carries the ``init`` start (a name of :data:`popbench.solvers.initial.STARTS`) and
+    the method starts from it. ``F_init`` is ``F`` (eq. 1) at that estimate, computed here, since
     methods differ in what their ``history`` records.
     """
     from popbench import objective as costs
-    from popbench.initial import check_start
     from popbench.methods import Budget, method_record
+    from popbench.solvers.initial import check_start
 
     check_start(init, "--init")
     if iterations is not None and iterations < 0:
@@ -243,11 +243,11 @@ def solve_record(
 
 def reading_notes(load, *arguments) -> tuple[Any, list[str]]:
     """``load(*arguments)`` and the one-line messages of the
-    :class:`popbench.io.ReadWarning` it raised (lines skipped, edges an EQUIV merge dropped);
+    :class:`popbench.io.read.ReadWarning` it raised (lines skipped, edges an EQUIV merge dropped);
     other warnings are shown as usual."""
     import warnings
 
-    from popbench.io import ReadWarning
+    from popbench.io.read import ReadWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ReadWarning)
@@ -268,7 +268,7 @@ def flagged_edges(graph, inlier_mask) -> list[dict[str, int]] | None:
     edge order, ``i``, ``j`` the file's vertex ids; None without a mask."""
     import numpy as np
 
-    from popbench.io import file_ids
+    from popbench.io.read import file_ids
 
     if inlier_mask is None:
         return None
@@ -286,7 +286,7 @@ def check_output_paths(
 ) -> None:
     """Before solving: ``output`` must end in ``.g2o`` or ``.graph``, and every given path must
     be in an existing folder and not be a folder (ValueRangeError, exit status 2)."""
-    from popbench.io import graph_writer
+    from popbench.io.read import graph_writer
 
     paths = {"output": output, "trajectory": trajectory, "flags": flags}
     for key, path in paths.items():
@@ -308,12 +308,12 @@ def write_outputs(
 ) -> list[str]:
     """Write a method's ``result`` on ``graph`` (the problem's global graph), with the file's
     own vertex ids: the graph with the solved poses to ``output``
-    (:func:`popbench.io.write_solution`), the TUM trajectory to ``trajectory``
-    (:func:`popbench.io.write_tum`) and the per-edge CSV to ``flags``
-    (:func:`popbench.io.write_flags`, weights from ``result.extras["weights"]`` where the
+    (:func:`popbench.io.read.write_solution`), the TUM trajectory to ``trajectory``
+    (:func:`popbench.io.read.write_tum`) and the per-edge CSV to ``flags``
+    (:func:`popbench.io.read.write_flags`, weights from ``result.extras["weights"]`` where the
     method reports them: gnc, mm-pgo with a kernel). Returns the one-line notes for the user:
-    TUM timestamps that float64 readers (evo) will round (:func:`popbench.io.tum_rounded`)."""
-    from popbench.io import file_ids, tum_rounded, write_flags, write_solution, write_tum
+    TUM timestamps that float64 readers (evo) will round (:func:`popbench.io.read.tum_rounded`)."""
+    from popbench.io.read import file_ids, tum_rounded, write_flags, write_solution, write_tum
 
     notes = []
     if output is not None:

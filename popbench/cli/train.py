@@ -113,7 +113,7 @@ def train_command(
         str | None,
         typer.Option(
             help="Training problems: V1, V2, V3 (synthetic teams) or SLAM (single-trajectory "
-            "maps, popbench.slam_maps; default: the task's, or V2)."
+            "maps, popbench.problems.slam_maps; default: the task's, or V2)."
         ),
     ] = None,
     robots: Annotated[

@@ -6,7 +6,7 @@ options and their help (``popbench --help`` imports no NumPy)."""
 from __future__ import annotations
 
 ITERATIONS = 1000  # rounds of the iterative methods (the paper's 1000)
-INIT = "odometry"  # every method's initial estimate (popbench.initial.STARTS)
+INIT = "odometry"  # every method's initial estimate (popbench.solvers.initial.STARTS)
 PARTITION = "metis"  # how poses are split among robots (popbench.choices.PARTITIONS)
 
 TABLE1_DATASETS = ("m3500", "m3500b", "m3500c", "city10k", "grid1000", "intel", "mit", "csail")

@@ -1,7 +1,7 @@
 """``popbench run heldout``: the learned solver on held-out synthetic problems, row by row.
 
 Every row is an estimate of the same problem brought through the same consensus
-(:mod:`popbench.reconcile`), so the rows differ only in what was done to the robots' local
+(:mod:`popbench.consensus.reconcile`), so the rows differ only in what was done to the robots' local
 graphs before it: nothing (``no-op``), a random or greedy policy, the expert, the Gauss–Newton
 sweep, the learned actors, every local graph at its own optimum (``local-lm``), or the ground
 truth. ``initial`` is the start itself, without a consensus. The rows from ``gn-sweep`` to
@@ -27,12 +27,12 @@ import numpy as np
 import pandas as pd
 
 from popbench.choices import DEFAULT_STEP_RULE, TRAINING_STEP_RULE
+from popbench.consensus.reconcile import DEFAULT_CONSENSUS, DEFAULT_CONSENSUS_ITERATIONS
 from popbench.harness.cache import code_fingerprint
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.runner import run_experiment
 from popbench.methods import entry_point
 from popbench.metrics import bootstrap_ci
-from popbench.reconcile import DEFAULT_CONSENSUS, DEFAULT_CONSENSUS_ITERATIONS
 
 HELDOUT_SEED_BASE = 2**32
 ROWS = (
@@ -68,7 +68,7 @@ class HeldoutConfig:
         poses_per_robot: synthetic trajectory length.
         rows: the rows to compute (a subset of :data:`ROWS`, in that order).
         consensus: the consensus every row goes through (one of
-            :data:`popbench.reconcile.CONSENSUS_MODES`).
+            :data:`popbench.consensus.reconcile.CONSENSUS_MODES`).
         consensus_iterations: its ADMM iterations at most (the tables' 200 by default; more to
             see what a converged consensus keeps of each row).
         checkpoint: the actor of the ``ga-sac`` row (None: the committed fine-tuned one).

@@ -36,14 +36,12 @@ import numpy as np
 import pandas as pd
 
 from popbench.datasets import file_sha256
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.harness import defaults, problems, reports
 from popbench.harness.cache import grid_specs
 from popbench.harness.executors import Row, Run, Spec
 from popbench.harness.paper import paper_table2_cell
 from popbench.harness.runner import run_experiment
-from popbench.initial import with_start
 from popbench.methods import Budget, get_method, method_options, method_record, named_path
 from popbench.objective import objective
 from popbench.outliers import (
@@ -55,6 +53,8 @@ from popbench.outliers import (
     precision_recall,
     read_outlier_mask,
 )
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import with_start
 
 DATASETS, METHODS = defaults.OUTLIERS_DATASETS, defaults.OUTLIERS_METHODS
 MASK = "mask"  # the model of a dataset whose false loop closures a mask file names
@@ -158,7 +158,7 @@ def corrupted_problem(
 ) -> DistributedProblem:
     """The split dataset with the outliers of ``model`` (module docstring; ``candidates`` for
     ``corrupt``, ``group_size`` for ``vertigo-grouped``, the mask file for ``mask``) and its
-    ``init`` start made from them (:func:`popbench.initial.with_start`)."""
+    ``init`` start made from them (:func:`popbench.solvers.initial.with_start`)."""
     if model == CORRUPT:
         clean = problems.distributed_problem(dataset, robots, "given")  # the file's poses
         graph, mask = inject_outliers(clean, rate, seed, candidates)

@@ -1,8 +1,8 @@
 """Problems and optima shared by the experiments, built once per process.
 
-The initial estimate of a table (its ``init`` option, a name of :data:`popbench.initial.STARTS`)
-is applied to every method alike: the problem carries it (:func:`popbench.initial.with_start`)
-and every method starts from the problem's poses.
+The initial estimate of a table (its ``init`` option, a name of
+:data:`popbench.solvers.initial.STARTS`) is applied to every method alike: the problem carries it
+(:func:`popbench.solvers.initial.with_start`) and every method starts from the problem's poses.
 
 Each result is remembered per dataset *and* the sha256 of its file, so a graph file edited
 while the process runs is read again rather than served from memory.
@@ -14,11 +14,11 @@ from collections.abc import Iterable
 from functools import lru_cache
 
 from popbench import datasets
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.harness.cache import dataset_sha256
-from popbench.initial import check_start, with_start
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import check_start, with_start
 
 
 def _sha(dataset: str) -> str | None:
@@ -38,7 +38,7 @@ def distributed_problem(
     dataset: str, robots: int, init: str, partition: str = "metis", seed: int = 0
 ) -> DistributedProblem:
     """The dataset split among ``robots`` robots, carrying the ``init`` start (a name of
-    :data:`popbench.initial.STARTS`; ValueRangeError otherwise)."""
+    :data:`popbench.solvers.initial.STARTS`; ValueRangeError otherwise)."""
     check_start(init, "initial estimate")
     return _distributed_problem(dataset, _sha(dataset), robots, init, partition, seed)
 

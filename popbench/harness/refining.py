@@ -27,9 +27,9 @@ import contextvars
 from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
-from popbench.distributed import DistributedProblem
 from popbench.harness.cache import CellCache, provenance
 from popbench.methods import METHODS, Budget, Result, get_method
+from popbench.problems.distributed import DistributedProblem
 
 Spec = Mapping[str, Any]
 RowOf = Callable[[Spec, DistributedProblem, Result], dict[str, Any]]

@@ -32,8 +32,8 @@ OPTIMUM_SLACK = 1e-6
 def optimum(problems: pd.DataFrame) -> pd.Series:
     """F* of each held-out problem of ``problems`` (columns :data:`PROBLEM_KEY`), indexed by
     them."""
+    from popbench.problems.synthetic import make_problem
     from popbench.solvers.lm import reference_optimum
-    from popbench.synthetic import make_problem
 
     keys = problems[list(PROBLEM_KEY)].drop_duplicates()
     values = [

@@ -18,7 +18,6 @@ from typing import Any
 
 import pandas as pd
 
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.harness import defaults, problems, profiles, reports
 from popbench.harness.cache import grid_specs, provenance
@@ -28,10 +27,12 @@ from popbench.harness.profiles import GAP_COLUMNS
 from popbench.harness.refining import solve_cell
 from popbench.harness.runner import run_experiment
 from popbench.methods import METHODS, Budget, Result, distributed_methods
+from popbench.problems.distributed import DistributedProblem
 
 DATASETS, ROBOTS = defaults.TABLE1_DATASETS, defaults.TABLE1_ROBOTS
-# Methods computed at some team sizes only: the warm-started mm-pgo rows (popbench.warm_start)
-# at n = 7, which keeps a fresh `make run` within its 10 minutes (docs/harness.md).
+# Methods computed at some team sizes only: the warm-started mm-pgo rows
+# (popbench.solvers.warm_start) at n = 7, which keeps a fresh `make run` within its 10 minutes
+# (docs/harness.md).
 METHOD_ROBOTS: dict[str, tuple[int, ...]] = {"prop-v1+mm-pgo": (7,), "local-lm+mm-pgo": (7,)}
 QUICK = {**defaults.TABLE1_QUICK, "out": Path(defaults.TABLE1_QUICK["out"])}
 

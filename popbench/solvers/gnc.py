@@ -45,12 +45,12 @@ import numpy as np
 
 from popbench import objective
 from popbench.choices import OBJECTIVES
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
-from popbench.initial import anchored
 from popbench.methods import Budget, Result
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.chordal import chordal_initialisation
+from popbench.solvers.initial import anchored
 from popbench.solvers.lm import NormalEquations, solve_graph
 from popbench.status import Status, free_gradient_norm
 

@@ -45,10 +45,10 @@ import scipy.sparse as sp
 
 from popbench import objective, se2
 from popbench.choices import OBJECTIVES
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph
 from popbench.methods import Budget, Result
+from popbench.problems.distributed import DistributedProblem
 from popbench.solvers.chordal import chordal_initialisation
 from popbench.sparse import nested_dissection, spd_lu
 from popbench.status import Status

@@ -1,5 +1,5 @@
 """Method ``"local-lm"``: every robot solves its own local graph with LM, then the same
-consensus as prop-v1 (:mod:`popbench.reconcile`).
+consensus as prop-v1 (:mod:`popbench.consensus.reconcile`).
 
 It is the classical counterpart of prop-v1: the bound a learned local policy is chasing (a
 policy can at best bring each local graph to its own optimum) with the same reconciliation.
@@ -17,16 +17,16 @@ from scipy.sparse import csgraph
 
 from popbench import se2
 from popbench.choices import OBJECTIVES
-from popbench.distributed import DistributedProblem, LocalGraph
-from popbench.errors import ValueRangeError
-from popbench.graph import EdgeKind, PoseGraph
-from popbench.methods import Budget, Result
-from popbench.reconcile import (
+from popbench.consensus.reconcile import (
     DEFAULT_CONSENSUS,
     DEFAULT_CONSENSUS_ITERATIONS,
     check_consensus,
     reconcile,
 )
+from popbench.errors import ValueRangeError
+from popbench.graph import EdgeKind, PoseGraph
+from popbench.methods import Budget, Result
+from popbench.problems.distributed import DistributedProblem, LocalGraph
 from popbench.solvers.lm import solve_graph
 from popbench.status import measure
 
@@ -224,7 +224,7 @@ def solve(
         problem: the distributed problem; ``graph.poses`` is the start.
         budget: unused (the local solves run to convergence, at most ``local_iterations``).
         local_iterations: LM steps at most per robot.
-        consensus: one of :data:`popbench.reconcile.CONSENSUS_MODES`.
+        consensus: one of :data:`popbench.consensus.reconcile.CONSENSUS_MODES`.
         consensus_iterations: ADMM iterations at most.
         objective: the local solves' cost, ``"F"`` (eq. 1) or ``"chi2"``.
 

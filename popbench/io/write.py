@@ -1,8 +1,8 @@
 """Write pose graphs (g2o, TORO), solutions, TUM trajectories and per-edge flag CSVs.
 
 Every writer writes the file's own vertex ids (:func:`file_ids`, exact uint64) and float64
-numbers with 17 significant digits, so a file read by :func:`popbench.io.read_graph` and written
-back reads to the same graph (TORO's information up to rounding, ≈ 1e-16 relative).
+numbers with 17 significant digits, so a file read by :func:`popbench.io.read.read_graph` and
+written back reads to the same graph (TORO's information up to rounding, ≈ 1e-16 relative).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 
 from popbench.errors import ValueRangeError
 from popbench.graph import EdgeKind, PoseGraph
-from popbench.io_format import FIX_TAG, FORMATS, G2O_ENTRIES, TORO_ENTRIES, toro_frame
+from popbench.io.format import FIX_TAG, FORMATS, G2O_ENTRIES, TORO_ENTRIES, toro_frame
 
 
 def _savetxt(handle, rows: np.ndarray, fmt: list[str] | str, delimiter: str = " ") -> None:

@@ -3,8 +3,8 @@
 g2o edge: ``EDGE_SE2 i j dx dy dθ I11 I12 I13 I22 I23 I33`` (upper triangle, (x, y, θ) order).
 TORO edge: ``EDGE2 i j dx dy dθ I11 I12 I22 I33 I13 I23``; TORO's translation error is not in
 the measurement frame, so the cost-preserving conversion is ``Λ_g2o = Bᵀ Λ_TORO B`` with
-``B = blkdiag(R(θ̃), 1)`` (:func:`toro_frame`). Reading is :mod:`popbench.io`, writing
-:mod:`popbench.io_write`.
+``B = blkdiag(R(θ̃), 1)`` (:func:`toro_frame`). Reading is :mod:`popbench.io.read`, writing
+:mod:`popbench.io.write`.
 """
 
 from __future__ import annotations
@@ -65,8 +65,8 @@ def information_matrices(values: np.ndarray, fmt: str, theta: np.ndarray) -> np.
 
 
 class ScannedLines(NamedTuple):
-    """The parsed lines of one file (what :mod:`popbench.io` scans and :mod:`popbench.io_limits`
-    checks), with their 1-based line numbers; ids exact, as written."""
+    """The parsed lines of one file (what :mod:`popbench.io.read` scans and
+    :mod:`popbench.io.limits` checks), with their 1-based line numbers; ids exact, as written."""
 
     vertex_ids: np.ndarray  # (V,) uint64
     vertices: np.ndarray  # (V, 3) x, y, θ

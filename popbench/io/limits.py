@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from popbench.errors import DataFormatError
-from popbench.io_format import ScannedLines
+from popbench.io.format import ScannedLines
 
 # Magnitudes the solvers are known to handle (docs/solve.md, "Refused input"): beyond them a file is
 # refused at load with its line, not left to fail inside a factorisation.

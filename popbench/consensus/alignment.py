@@ -2,7 +2,7 @@
 
 After the local refinement every robot's map is consistent in itself but placed in the frame it
 started from, so the inter-robot edges, which tie the maps together, carry the accumulated
-disagreement. Before the ADMM consensus (popbench.consensus) each robot's whole local estimate
+disagreement. Before the ADMM consensus (popbench.consensus.admm) each robot's whole local estimate
 (owned poses and separator copies) is moved rigidly by one frame ``T_r ∈ SE(2)``:
 
     y_v = T_r ∘ x_v   for every local vertex v of robot r,
@@ -31,9 +31,9 @@ import dataclasses
 import numpy as np
 
 from popbench import se2
-from popbench.distributed import DistributedProblem
 from popbench.graph import PoseGraph
 from popbench.objective import linearise, objective
+from popbench.problems.distributed import DistributedProblem
 
 INITIAL_DAMPING, MIN_DAMPING, MAX_DAMPING = 1e-4, 1e-9, 1e8
 

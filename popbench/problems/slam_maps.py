@@ -1,7 +1,7 @@
 """Synthetic single-trajectory SLAM maps cut into robots (training distribution, docs/training.md).
 
-Unlike :mod:`popbench.synthetic` (every robot its own walk, fixed σ), a map here is what the
-registered datasets are: ONE trajectory, split into ``robots`` parts by the same METIS split the
+Unlike :mod:`popbench.problems.synthetic` (every robot its own walk, fixed σ), a map here is what
+the registered datasets are: ONE trajectory, split into ``robots`` parts by the same METIS split the
 tables use (:meth:`DistributedProblem.from_graph`, seed 0), so odometry edges cross robots and
 loop closures span the map.
 
@@ -32,10 +32,10 @@ from scipy.spatial import cKDTree
 
 from popbench import se2
 from popbench.choices import SLAM_LEVEL
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import PoseGraph, make_graph
-from popbench.initial import with_start
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import with_start
 
 POSES_PER_ROBOT = (100, 1500)  # default range of P (poses per robot)
 STRAIGHT = (0.3, 0.8)  # probability of no turn before a step (uniform)
@@ -45,7 +45,8 @@ TRANSLATION_SIGMA = (0.01, 0.5)  # [m per m] odometry σ_t (grid1000_2 0.010 …
 ANISOTROPY = (1.0, 5.0)  # σ_x / σ_y (or its inverse) of one edge
 LOOP_FACTOR = (0.5, 3.0)  # loop closure σ / odometry σ (datasets 0.5 … 2.5)
 EDGE_JITTER = (0.0, 1.0)  # j: each edge's σ times 2^U(−j, j)
-LEVEL = SLAM_LEVEL  # the noise-level name under which popbench.synthetic.make_problem draws these
+# the noise-level name under which popbench.problems.synthetic.make_problem draws these
+LEVEL = SLAM_LEVEL
 MIN_LOOP_GAP = 10  # a revisit is at least this many steps after the earlier visit
 
 

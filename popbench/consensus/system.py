@@ -1,4 +1,4 @@
-"""The team of :func:`popbench.consensus.admm_consensus` and its x-update linear system.
+"""The team of :func:`popbench.consensus.admm.admm_consensus` and its x-update linear system.
 
 The robots' half-weighted local graphs stacked into one disjoint graph (:class:`_Team`), the fixed
 sparse block-diagonal structure of every robot's damped Gauss–Newton system (:class:`_TeamSystem`)
@@ -13,10 +13,10 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from popbench.distributed import DistributedProblem
 from popbench.graph import PoseGraph
 from popbench.objective import weights
-from popbench.partition import adjacency
+from popbench.problems.distributed import DistributedProblem
+from popbench.problems.partition import adjacency
 from popbench.sparse import nested_dissection, spd_lu
 
 # ----- the team: every robot's local graph in one disjoint graph -----------------------------

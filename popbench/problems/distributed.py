@@ -3,7 +3,7 @@
 Local graphs (paper Fig. 1): robot ``r`` owns the vertices assigned to it and holds every edge with
 at least one endpoint it owns, so an inter-robot edge appears in both robots' local graphs. The
 non-owned endpoints of its edges are *separator copies*: duplicated poses that a consensus step
-(:mod:`popbench.consensus`) reconciles. A local graph lists its vertices as the owned ids
+(:mod:`popbench.consensus.admm`) reconciles. A local graph lists its vertices as the owned ids
 (ascending) followed by the separator copies (ascending global id).
 
 Derived views are computed once per problem (``functools.cached_property`` works on this frozen,
@@ -64,8 +64,9 @@ class DistributedProblem:
             ``(N,)`` vertex → robot assignment (robot 0 owns vertex 0, the gauge) and
             ``graph.kinds`` the edge labels under it.
         start: the name of the start ``graph.poses`` holds (one of
-            :data:`popbench.initial.STARTS`; :func:`popbench.initial.with_start` makes it). Every
-            method starts from ``graph.poses``; the name is recorded, not used to recompute.
+            :data:`popbench.solvers.initial.STARTS`; :func:`popbench.solvers.initial.with_start`
+            makes it). Every method starts from ``graph.poses``; the name is recorded, not used to
+            recompute.
         outlier_mask: ``(M,)`` bool, True for injected outlier edges, or None.
     """
 
@@ -105,17 +106,17 @@ class DistributedProblem:
                 explicit ``(N,)`` vertex → robot assignment (then ``partition``/``seed`` are
                 unused).
             partition: ``"metis"`` (default) or ``"contiguous"``
-                (see :mod:`popbench.partition`).
+                (see :mod:`popbench.problems.partition`).
             seed: METIS seed.
             start: the name of the start ``graph.poses`` holds (see
-                :func:`popbench.initial.with_start`, which makes it).
+                :func:`popbench.solvers.initial.with_start`, which makes it).
             outlier_mask: ``(M,)`` ground-truth outlier flags, if any.
 
         Raises:
             ValueRangeError: ``robots`` outside ``[1, N]``, an unknown partition method or a
                 malformed assignment.
         """
-        from popbench import partition as partitioning
+        from popbench.problems import partition as partitioning
 
         if isinstance(robots, np.ndarray):
             assignment = robots

@@ -32,12 +32,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from popbench import se2, slam_maps
+from popbench import se2
 from popbench.choices import NOISE_LEVELS
-from popbench.distributed import DistributedProblem
 from popbench.errors import ValueRangeError
 from popbench.graph import odometry_composition, robot_kinds
-from popbench.initial import with_start
+from popbench.problems import slam_maps
+from popbench.problems.distributed import DistributedProblem
+from popbench.solvers.initial import with_start
 
 MIN_LOOP_GAP = 5  # intra-robot loop closures join poses at least this many steps apart
 STEP_LENGTH = 1.0  # [m]
@@ -108,8 +109,8 @@ def make_problem(
     Args:
         robots: number of robots ``R ≥ 1``.
         noise: ``"V1"``, ``"V2"`` or ``"V3"`` (:data:`NOISE_LEVELS`), or ``"SLAM"``: a
-            single-trajectory map of :mod:`popbench.slam_maps` with ``poses_per_robot`` drawn
-            in ``[P, 2P]`` (``loop_ratio`` and ``loop_radius`` unused there).
+            single-trajectory map of :mod:`popbench.problems.slam_maps` with ``poses_per_robot``
+            drawn in ``[P, 2P]`` (``loop_ratio`` and ``loop_radius`` unused there).
         poses_per_robot: ``P ≥ 2`` poses per robot.
         loop_ratio: loop closures per pose; ``round(loop_ratio · R · P)`` are sampled.
         seed: seed of ``np.random.default_rng``; equal arguments give identical problems.

@@ -1,7 +1,7 @@
 """The initial estimate ("start") of a problem, made in one place.
 
-A :class:`~popbench.distributed.DistributedProblem` carries its start: its ``graph.poses`` are
-the initial estimate and ``problem.start`` names how they were made. Every method starts from
+A :class:`~popbench.problems.distributed.DistributedProblem` carries its start: its ``graph.poses``
+are the initial estimate and ``problem.start`` names how they were made. Every method starts from
 ``problem.graph.poses``; the CLI, the harness and the environments build problems with
 :func:`with_start`, so a table, ``popbench solve`` and a direct call agree on the start.
 
@@ -27,8 +27,8 @@ import numpy as np
 from popbench.errors import ValueRangeError
 
 if TYPE_CHECKING:
-    from popbench.distributed import DistributedProblem
     from popbench.graph import PoseGraph
+    from popbench.problems.distributed import DistributedProblem
 
 STARTS = ("odometry", "chordal", "given")
 
@@ -78,7 +78,7 @@ def with_start(problem_or_graph: GraphOrProblem, start: str) -> GraphOrProblem:
     is made from its (global) graph's measurements, so after outliers are injected it is made
     from the corrupted ones, as a real system would.
     """
-    from popbench.distributed import DistributedProblem
+    from popbench.problems.distributed import DistributedProblem
 
     if isinstance(problem_or_graph, DistributedProblem):
         graph = problem_or_graph.graph

@@ -1,8 +1,8 @@
 """Information-weighted ADMM consensus over separator poses (paper §III-D, after Fung et al. 2019).
 
 Every robot ``i`` holds local copies ``x^i`` of its local vertices (owned poses and separator
-copies, :class:`popbench.distributed.LocalGraph`). A separator ``s`` has one copy per local graph
-it belongs to; ADMM drives the copies to a consensus value ``z_s``:
+copies, :class:`popbench.problems.distributed.LocalGraph`). A separator ``s`` has one copy per
+local graph it belongs to; ADMM drives the copies to a consensus value ``z_s``:
 
 * local objective ``f_i``: eq. 1 over robot ``i``'s local edges, with every inter-robot edge at
   **half** its information (it is held by both robots), so that ``Σ_i f_i(x) = F(x)`` once the
@@ -35,7 +35,7 @@ Messages: per iteration each non-owner copy sends ``x_s^i + u_s^i`` to the owner
 receives ``z_s`` back — two pose messages per non-owner copy.
 
 Batched execution (all robots' x-updates as one block-diagonal team system): see
-:class:`popbench.consensus_system._TeamSystem`. Accounting (``parallel_s``): see
+:class:`popbench.consensus.system._TeamSystem`. Accounting (``parallel_s``): see
 :func:`admm_consensus`.
 """
 
@@ -47,10 +47,10 @@ import time
 import numpy as np
 
 from popbench import se2
-from popbench.consensus_system import _solve_blocks, _Team, _team, _TeamSystem
-from popbench.distributed import DistributedProblem
+from popbench.consensus.system import _solve_blocks, _Team, _team, _TeamSystem
 from popbench.errors import ValueRangeError
 from popbench.objective import edge_costs, linearise, residuals
+from popbench.problems.distributed import DistributedProblem
 
 INFORMATION_FLOOR = 1e-9  # added to every Λ_s^i so that the weighted mean is always defined
 INITIAL_DAMPING, MIN_DAMPING, MAX_DAMPING = 1e-4, 1e-9, 1e8

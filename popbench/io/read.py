@@ -1,8 +1,8 @@
 """Read planar pose graphs: g2o (``VERTEX_SE2``/``EDGE_SE2``) and TORO (``VERTEX2``/``EDGE2``).
 
-The line layouts and TORO's information conversion are :mod:`popbench.io_format`, the value
-ranges refused at load :mod:`popbench.io_limits`, the writers :mod:`popbench.io_write`; their
-public names are importable from here too (``from popbench.io import write_g2o``).
+The line layouts and TORO's information conversion are :mod:`popbench.io.format`, the value
+ranges refused at load :mod:`popbench.io.limits`, the writers :mod:`popbench.io.write`; their
+public names are importable from here too (``from popbench.io.read import write_g2o``).
 
 TORO ``EQUIV i j`` (as in Olson's ``w10000.graph``) declares vertices ``i`` and ``j`` to be the
 same pose. They are merged, not tied by a tight edge: an infinitely stiff constraint is exactly
@@ -38,7 +38,7 @@ from popbench.graph import (
     odometry_composition,
     unconnected_vertices,
 )
-from popbench.io_format import (
+from popbench.io.format import (
     EQUIV_TAG,
     FIELDS,
     FIX_TAG,
@@ -48,14 +48,14 @@ from popbench.io_format import (
     ScannedLines,
     information_matrices,
 )
-from popbench.io_limits import (
+from popbench.io.limits import (
     COORDINATE_LIMIT,
     INFORMATION_RANGE,
     INFORMATION_SPREAD,
     check_coordinates,
     check_information,
 )
-from popbench.io_write import (
+from popbench.io.write import (
     FLAGS_HEADER,
     GRAPH_WRITERS,
     file_ids,

@@ -3,11 +3,11 @@ method that refines local graphs (prop-v1, prop-v2, local-lm).
 
 ``CONSENSUS_MODES`` names the ways to reconcile the separator copies:
 
-* ``"admm"``: information-weighted ADMM over the separators (:mod:`popbench.consensus`), the
+* ``"admm"``: information-weighted ADMM over the separators (:mod:`popbench.consensus.admm`), the
   paper's §III-D step;
 * ``"aligned-admm"`` (the default; not in the paper): first move every robot's local map
-  rigidly by one SE(2) frame chosen to minimise the assembled eq. 1 (:mod:`popbench.alignment`),
-  then the same ADMM.
+  rigidly by one SE(2) frame chosen to minimise the assembled eq. 1
+  (:mod:`popbench.consensus.alignment`), then the same ADMM.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 from popbench import objective
-from popbench.alignment import align_frames
-from popbench.consensus import admm_consensus
-from popbench.distributed import DistributedProblem
+from popbench.consensus.admm import admm_consensus
+from popbench.consensus.alignment import align_frames
 from popbench.errors import ValueRangeError
+from popbench.problems.distributed import DistributedProblem
 
 CONSENSUS_MODES = ("admm", "aligned-admm")
 DEFAULT_CONSENSUS = "aligned-admm"  # chosen by measurement: docs/consensus.md

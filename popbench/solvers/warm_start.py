@@ -30,8 +30,8 @@ from collections.abc import Callable
 import numpy as np
 
 from popbench import objective
-from popbench.distributed import DistributedProblem
 from popbench.methods import Budget, Result, get_method
+from popbench.problems.distributed import DistributedProblem
 
 
 def mm_pgo_from(
