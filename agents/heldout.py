@@ -15,7 +15,8 @@ GA-SAC fine-tuned actor of the same training run: what the fine-tuning adds; any
 given, shown under the algorithm that trained it, :func:`row_label`). The ``policy`` row runs a
 user's policy (agents.user_policy) in the environment it names.
 
-With an outlier rate (``spec["outlier_rate"]`` > 0) every row gets the same problem with
+Each cell is one row on one held-out problem (:class:`HeldoutCell`, read once from the harness's
+spec). With an outlier rate (``outlier_rate`` > 0) every row gets the same problem with
 outliers injected (popbench.outliers.with_outliers, the loop-closure candidates, seeded by the
 problem's seed), and the learned rows are also scored as classifiers of them (:func:`gate_scores`).
 """
@@ -23,7 +24,7 @@ problem's seed), and the learned rows are also scored as classifiers of them (:f
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +62,56 @@ POLICY_TASK = dataclasses.replace(TRAJECTORY_MODES, base="none")
 LEARNED_ROWS = ("learned-order", "imitation", "ga-sac")  # the rows that run a checkpoint
 
 Policy = Callable[[Any], tuple[torch.Tensor, torch.Tensor]]
+POLICY_ENTRIES = ("policy", "policy_arg", "policy_env")  # agents.user_policy.describe_policy's
+
+
+@dataclasses.dataclass(frozen=True)
+class HeldoutCell:
+    """One cell of ``popbench run heldout``: a row on one held-out problem, read once from the
+    harness's spec (popbench.harness.heldout writes it; an entry an earlier cell lacks reads as
+    its default, so cached cells stay valid; the spec's other entries are the cache's).
+
+    Attributes:
+        row: the row (``initial``, the policy and learned rows, ``local-lm``, ``ground-truth``).
+        robots, noise, poses_per_robot, problem_seed: the held-out problem
+            (:func:`popbench.problems.synthetic.make_problem`).
+        consensus, consensus_iterations: the consensus (popbench.consensus.reconcile) and its
+            ADMM iterations at most.
+        outlier_rate: the share of loop-closure candidates made outliers (0: none).
+        step_rule: the episode rows' step rule (envs.modes.EnvModes.step_rule).
+        checkpoint: a learned row's actor checkpoint (None for the other rows).
+        policy: the policy row's entries (:data:`POLICY_ENTRIES`; None for the other rows).
+    """
+
+    row: str
+    robots: int
+    noise: str
+    poses_per_robot: int
+    problem_seed: int
+    consensus: str
+    consensus_iterations: int = DEFAULT_CONSENSUS_ITERATIONS
+    outlier_rate: float = 0.0
+    step_rule: str = TRAINING_STEP_RULE
+    checkpoint: str | None = None
+    policy: Mapping[str, Any] | None = None
+
+    @classmethod
+    def of(cls, spec: Mapping[str, Any]) -> HeldoutCell:
+        """The cell a harness spec describes."""
+        names = {field.name for field in dataclasses.fields(cls)} - {"policy"}
+        policy = {key: spec[key] for key in POLICY_ENTRIES if key in spec}
+        return cls(**{key: spec[key] for key in names if key in spec}, policy=policy or None)
+
+    def problem(self) -> DistributedProblem:
+        """The held-out problem, with its outliers when ``outlier_rate`` > 0 (seeded alike)."""
+        problem = make_problem(
+            self.robots, self.noise, self.poses_per_robot, seed=self.problem_seed
+        )
+        if self.outlier_rate > 0:
+            from popbench.outliers import with_outliers
+
+            problem = with_outliers(problem, self.outlier_rate, seed=self.problem_seed)
+        return problem
 
 
 def row_checkpoints(
@@ -169,20 +220,26 @@ def learned_episode(
         return run_episode(actor, problem, task=task, correction=correction)
 
 
-def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any]) -> list:
-    """The robots' local copies that ``row`` hands to the consensus (a learned row runs the
-    actor of ``spec["checkpoint"]``, the policy row the policy of ``spec["policy"]``); the
-    episode rows under ``spec["step_rule"]`` (envs.core.PGOCore; default ``"clip"``)."""
+def local_estimates(
+    row: str,
+    problem: DistributedProblem,
+    *,
+    step_rule: str = TRAINING_STEP_RULE,
+    checkpoint: str | Path | None = None,
+    seed: int = 0,
+) -> list:
+    """The robots' local copies that ``row`` (not ``policy``, :func:`evaluate_row` runs it)
+    hands to the consensus: a learned row runs the actor of ``checkpoint``, ``random`` draws
+    with ``seed``; the episode rows under ``step_rule`` (envs.core.PGOCore)."""
     from envs.expert import Expert
     from envs.sweep import GaussNewtonSweep
     from envs.tree import place_separators
 
     if row == "no-op":
         return place_separators(problem)
-    rule = spec.get("step_rule", TRAINING_STEP_RULE)
+    rule = step_rule
     if row == "random":
-        rng = np.random.default_rng(spec["problem_seed"])
-        return episode(problem, random_policy(rng), rule)
+        return episode(problem, random_policy(np.random.default_rng(seed)), rule)
     if row == "greedy":
         return episode(problem, greedy_policy(), rule)
     if row == "gn-sweep":
@@ -190,15 +247,11 @@ def local_estimates(row: str, problem: DistributedProblem, spec: dict[str, Any])
     if row == "expert":
         return episode(problem, class_policy(Expert), rule)
     if row in LEARNED_ROWS:
-        return learned_episode(row, problem, spec["checkpoint"], rule).local_poses
+        return learned_episode(row, problem, checkpoint, rule).local_poses
     if row == "local-lm":
         return local_optima(problem)[0]
     if row == "ground-truth":
         return problem.split(problem.graph.ground_truth)
-    if row == "policy":
-        from agents.user_policy import policy_episode
-
-        return policy_episode(problem, spec)
     raise NotImplementedError(f"held-out row {row!r}")
 
 
@@ -236,20 +289,15 @@ def robots_local_f(problem: DistributedProblem, local_poses: list) -> float:
 
 
 def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
-    """F and ATE of one row on one held-out problem, ``F_local``: F of the assembled local
-    copies handed to the consensus (the start itself for ``initial``), and ``F_robots``: the
-    robots' own local F before the consensus (:func:`robots_local_f`); with an outlier rate,
-    the learned rows add :func:`gate_scores`."""
-    problem = make_problem(
-        spec["robots"], spec["noise"], spec["poses_per_robot"], seed=spec["problem_seed"]
-    )
-    rate = spec.get("outlier_rate", 0.0)
-    if rate > 0:
-        from popbench.outliers import with_outliers
-
-        problem = with_outliers(problem, rate, seed=spec["problem_seed"])
+    """F and ATE of one row on one held-out problem (the cell ``spec`` describes,
+    :class:`HeldoutCell`), ``F_local``: F of the assembled local copies handed to the consensus
+    (the start itself for ``initial``), and ``F_robots``: the robots' own local F before the
+    consensus (:func:`robots_local_f`); with an outlier rate, the learned rows add
+    :func:`gate_scores`."""
+    cell = HeldoutCell.of(spec)
+    problem = cell.problem()
     graph = problem.graph
-    if spec["row"] == "initial":
+    if cell.row == "initial":
         f = objective.objective(graph, graph.poses)
         robots = robots_local_f(problem, problem.split())
         return {
@@ -258,20 +306,23 @@ def evaluate_row(spec: dict[str, Any]) -> dict[str, float]:
             "F_local": f,
             "F_robots": robots,
         }
-    learned = spec["row"] in LEARNED_ROWS
+    learned = cell.row in LEARNED_ROWS
     if learned:
-        rule = spec.get("step_rule", TRAINING_STEP_RULE)
-        run = learned_episode(spec["row"], problem, spec["checkpoint"], rule)
+        run = learned_episode(cell.row, problem, cell.checkpoint, cell.step_rule)
         local = run.local_poses
+    elif cell.row == "policy":
+        from agents.user_policy import policy_episode
+
+        protocol = (cell.robots, cell.noise, cell.poses_per_robot)
+        local = policy_episode(problem, cell.policy or {}, protocol)
     else:
-        local = local_estimates(spec["row"], problem, spec)
-    iterations = spec.get("consensus_iterations", DEFAULT_CONSENSUS_ITERATIONS)
-    reconciled = reconcile(problem, local, spec["consensus"], iterations)
+        local = local_estimates(cell.row, problem, step_rule=cell.step_rule, seed=cell.problem_seed)
+    reconciled = reconcile(problem, local, cell.consensus, cell.consensus_iterations)
     scores: dict[str, float] = {}
-    if learned and rate > 0:  # the gate prop-v1 flags from (agents.methods.flag_gate)
-        task = cached_actor(spec["checkpoint"], "cpu")[1]
+    if learned and cell.outlier_rate > 0:  # the gate prop-v1 flags from (agents.methods.flag_gate)
+        task = cached_actor(cell.checkpoint, "cpu")[1]
         scores = gate_scores(
-            problem, *flag_gate(problem, run, reconciled.poses, spec["checkpoint"], task)
+            problem, *flag_gate(problem, run, reconciled.poses, cell.checkpoint, task)
         )
     return {
         "F": objective.objective(graph, reconciled.poses),

@@ -33,6 +33,7 @@ import importlib.util
 import inspect
 import os
 import sys
+from collections.abc import Mapping
 from dataclasses import astuple
 from functools import lru_cache
 from pathlib import Path
@@ -139,14 +140,18 @@ def default_padding(robots: int, noise: str, poses_per_robot: int) -> tuple[int,
     return dims.vertices, dims.edges, dims.degree
 
 
-def problem_env(problem: DistributedProblem, spec: dict[str, Any]) -> Any:
-    """The TorchRL env (B = 1) of ``spec["policy_env"]``, loaded with ``problem`` (module
-    docstring; reward "F" unless the options say otherwise)."""
+def problem_env(
+    problem: DistributedProblem, entries: Mapping[str, Any], protocol: tuple[int, str, int]
+) -> Any:
+    """The TorchRL env (B = 1) of ``entries["policy_env"]`` (the row's :func:`describe_policy`
+    entries), loaded with ``problem``, padded as the held-out ``protocol`` (robots, noise level,
+    poses per robot) pads its problems (module docstring; reward "F" unless the options say
+    otherwise)."""
     from envs.observation import Dimensions
     from envs.torchrl_env import PGOEnv
 
-    options = {"reward": "F", **spec["policy_env"]}
-    default = default_padding(spec["robots"], spec["noise"], spec["poses_per_robot"])
+    options = {"reward": "F", **entries["policy_env"]}
+    default = default_padding(*protocol)
     needed = Dimensions.of([problem])
     dims = Dimensions(
         *(
@@ -157,15 +162,18 @@ def problem_env(problem: DistributedProblem, spec: dict[str, Any]) -> Any:
     return PGOEnv(lambda seed: problem, problem.num_robots, dims, 1, **options)
 
 
-def policy_episode(problem: DistributedProblem, spec: dict[str, Any]) -> list[np.ndarray]:
-    """The robots' local copies after the policy's deterministic episode (module docstring)."""
+def policy_episode(
+    problem: DistributedProblem, entries: Mapping[str, Any], protocol: tuple[int, str, int]
+) -> list[np.ndarray]:
+    """The robots' local copies after the deterministic episode of the policy ``entries``
+    describe (:func:`describe_policy`) in :func:`problem_env` (module docstring)."""
     from tensordict.nn import TensorDictModuleBase
     from torchrl.envs import TransformedEnv
     from torchrl.envs.utils import ExplorationType, set_exploration_type
     from torchrl.modules.utils import get_primers_from_module
 
-    policy = cached_policy(spec["policy"], spec.get("policy_arg"))
-    env = base = problem_env(problem, spec)
+    policy = cached_policy(entries["policy"], entries.get("policy_arg"))
+    env = base = problem_env(problem, entries, protocol)
     if isinstance(policy, torch.nn.Module):  # a recurrent module's state, as TorchRL primes it
         primers = get_primers_from_module(policy, warn=False)
         env = base if primers is None else TransformedEnv(base, primers)
@@ -174,7 +182,7 @@ def policy_episode(problem: DistributedProblem, spec: dict[str, Any]) -> list[np
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         steps = env.rollout(base.dims.edges + 1, policy, break_when_any_done=True)
     if not bool(steps["next", "done"][0, -1].all()):
-        raise ValueRangeError("--policy", spec["policy"], "a policy whose episode ends")
+        raise ValueRangeError("--policy", entries["policy"], "a policy whose episode ends")
     return base.local_poses(0)
 
 

@@ -104,7 +104,7 @@ def run_row(
     if row == "gn-sweep":
         return gn_sweep(problem)
     if row == "local-lm":
-        copies = local_estimates("local-lm", problem, {})
+        copies = local_estimates("local-lm", problem)
         return copies, None, None, copies
     learned = "ga-sac" if row == "former" else row  # the former default runs as prop-v1's actor
     episode = learned_episode(learned, problem, checkpoints[row])
@@ -209,7 +209,7 @@ def multi_pass(
     from agents.heldout import robots_local_f
 
     problem = distributed_problem(name, robots, "odometry")
-    optima = local_estimates("local-lm", problem, {})
+    optima = local_estimates("local-lm", problem)
     record: dict[str, Any] = {
         "dataset": name,
         "local-lm": {

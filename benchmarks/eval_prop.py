@@ -62,15 +62,16 @@ def main() -> None:
     for name in args.datasets.split(","):
         problem = distributed_problem(name, args.robots, "odometry")
         f_init = objective.objective(problem.graph, problem.graph.poses)
-        start = align_frames(problem, local_estimates("no-op", problem, {})).local_poses
+        start = align_frames(problem, local_estimates("no-op", problem)).local_poses
         noop_aligned = objective.objective(problem.graph, problem.assemble(start))
         print(f"{name:>12} {'(start)':>14} F {f_init:.5g}; no-op F_aligned {noop_aligned:.5g}")
         for row in ROWS:
             if checkpoints.get(row, ()) is None:
                 continue
-            spec = {"checkpoint": checkpoints[row][0]} if row in checkpoints else {}
+            checkpoint = checkpoints[row][0] if row in checkpoints else None
             started = time.perf_counter()
-            reconciled = reconcile(problem, local_estimates(row, problem, spec), args.consensus)
+            copies = local_estimates(row, problem, checkpoint=checkpoint)
+            reconciled = reconcile(problem, copies, args.consensus)
             seconds = time.perf_counter() - started
             f = objective.objective(problem.graph, reconciled.poses)
             print(
