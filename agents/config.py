@@ -92,41 +92,27 @@ class AlgorithmConfig:
             ∈ (−1, 1)³; −3 = −dim(δ), the SAC heuristic.
         gate_l1: weight of the L1 penalty on the actor's gates z, applied to their mean over
             real edges and layers (paper: unspecified).
-        reward_scale: SAC reward scale c: the critic's target uses c·r (agents.loss; paper:
-            unspecified, i.e. 1). Chosen so that the per-step reward, a fraction ≈ 1/|E_i| of the
-            remaining error, is O(1) against the entropy bonus (measurements in
-            agents/checkpoints/README.md).
-        huber_delta: the critic regresses its TD error with a Huber loss of this width (in
-            scaled-reward units); None gives SAC's ½ δ² (paper: unspecified). See agents.loss.
-        critic_warmup_updates: updates during which only the critic and the temperatures
-            learn (the actor's loss is left out; 0 = SAC, the paper's; the supervised terms
-            below do not need the critic and act from the first update).
+        reward_scale: SAC reward scale c: the critic's target uses c·r (agents.loss; paper: 1),
+            so that the per-step reward is O(1) against the entropy bonus (docs/training.md).
+        huber_delta: width of the critic's Huber loss on its TD error (scaled-reward units);
+            None gives SAC's ½ δ² (paper: unspecified; agents.loss).
+        critic_warmup_updates: updates in which only the critic and the temperatures learn
+            (0 = SAC, the paper's; the supervised terms act from the first update).
         max_grad_norm: gradient clipping of every optimiser step.
-        bc_weight: weight of a behaviour-cloning term on the replayed states, labelled by the
-            expert at collection time (agents.loss "loss_bc"; 0 = none, the paper's GA-SAC;
-            beyond the paper, docs/training.md).
-        gate_weight: weight of the supervised gate loss against the injected outlier labels
-            (agents.loss "loss_gate"; 0 = none; beyond the paper).
+        bc_weight, gate_weight: weights of the supervised terms (agents.loss "loss_bc", the
+            expert's labels; "loss_gate", the injected outliers; 0 = none, the paper's).
         reward: the training environment's L (envs.core): "localisation" (the paper's, ground
-            truth) or "F" (the local objective: what the robot observes, what imitation
-            targets and what the tables measure).
-        auto_reward_scale: set c at the end of the warm-up to 1 / std of the warm-up rewards
-            (reward normalisation; reward_scale is then ignored).
-        auto_delta_entropy: set the correction's target entropy at the end of the warm-up to
-            the start policy's own, −mean log π(δ) on the warm-up states (exploration on the
-            scale the imitation head learnt, not the SAC heuristic −3).
-        anchor_weight: λ₀ of a KL term toward the start (imitation) policy, KL(π ‖ π₀) of the
-            edge choice plus of the correction's pre-tanh Gaussian on the chosen edge, with
-            weight λ_k = λ₀ · max(0, 1 − k / anchor_updates) at actor update k (0 = none;
-            beyond the paper: policy regularisation toward a prior, cf. Nair et al. 2018's BC
-            term and Fujimoto & Gu 2021's TD3+BC).
-        anchor_updates: actor updates over which the anchor's weight decays to 0 (0: held
-            constant).
-        terminal_bonus: the training environment's terminal log-ratio bonus (envs.core; the
-            paper's). It depends on the episode's start, which no state shows.
-        critic_patience: > 0: the actor starts learning once the critic's TD error on held-out
-            replayed transitions did not fall for this many checks (every 16 critic updates),
-            at the latest after critic_warmup_updates; 0: after critic_warmup_updates exactly.
+            truth) or "F" (the local objective, what the robot observes).
+        auto_reward_scale, auto_delta_entropy: c (agents.reward_scale) and the correction's
+            target entropy set from the warm-up instead of reward_scale, delta_target_entropy.
+        anchor_weight, anchor_updates: λ₀ of a KL term toward the start policy and the actor
+            updates over which it decays to 0 (0 = none; 0 updates: held constant).
+        terminal_bonus: the terminal log-ratio bonus (envs.core; the paper's; no state shows
+            the episode's start it depends on).
+        critic_patience: > 0: the actor starts once the critic's held-out TD error stopped
+            falling for this many checks (every 16 updates); 0: after critic_warmup_updates.
+
+    The options beyond the paper in detail: docs/training.md ("The options beyond the paper").
     """
 
     gamma: float = 0.99

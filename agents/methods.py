@@ -248,33 +248,8 @@ def solve_prop_v1(
             :data:`DEFAULT_STEP_RULE`: no step raises a robot's local F; None: the checkpoint's
             own, "clip" for every committed actor).
 
-    Result fields
-        iterations = T (actor steps). history = F of the robots' copies after each step, counted
-        edge by edge with each inter-robot edge half from each of its two robots (so history[0] is F
-        at the start), with the final entry replaced by F of the returned estimate; history_s the
-        makespan at each entry (the setup / n plus the steps' step_s / n so far, the final entry
-        also the consensus's, so it equals parallel_s). prop-v2 appends F after each LM step, at
-        prop-v1's parallel_s plus the LM's wall time so far (its last entry: parallel_s).
-        inlier_mask: an edge is an outlier when its layer-averaged gate is ≤ 0.5 in *either* robot
-        that holds it (an inter-robot edge is seen by two robots; one flag suffices) — the gate of
-        the checkpoint's outlier gate at the reconciled estimate, against its fitted threshold, when
-        it has one (agents.outlier_gate), else of the episode's final actor pass (the paper's).
-        messages: the alignment's and the consensus's pose messages (the actor steps exchange
-        nothing). parallel_s (simulated makespan): the robots' actors run batched in one process
-        here, so each step's wall time is attributed evenly, step_s / n per robot (a lower bound on
-        a robot acting alone, which loses the batching), plus the setup time / n and the consensus's
-        own parallel_s (popbench.consensus.admm, "Accounting": per ADMM iteration the slowest
-        robot's factorise-and-solve time plus its share of the batched vectorised pass) and the
-        alignment's wall time (one small solve). prop-v2 adds LM's wall time (centralised) to
-        prop-v1's times, also when it starts from prop-v1's cached cell (popbench.harness.refining).
-        extras: actor_s (setup + steps) and consensus_s (alignment + ADMM), the split of wall_s [s];
-        F_episode, F of the assembled estimate after the episode; F_actor and F_aligned, the same
-        with the robots whose episode did not lower their local objective back at their start (the
-        consensus's input), and after the alignment; F_consensus, F of the consensus's output; kept,
-        "consensus" or "episode" (which of the two is returned); local_F_start and local_F_episode,
-        the robots' local objectives summed, at the start and after the episode;
-        robots_kept_episode, the number of robots that kept their episode's result, and
-        robots_reverted, the others.
+    Result fields (iterations, history, inlier_mask, messages, parallel_s, extras): their
+        meaning for prop-v1 and prop-v2 is docs/methods.md, "prop-v1's result fields".
     Budget: the episode has a fixed length; `budget.iterations` does not truncate it (harness
         callers pass a Budget for every method); `budget.seconds`, if given, stops the episode
         early.

@@ -175,15 +175,15 @@ def add_false_loop_closures(
       consistent edges ``(a + k, b + k)``, ``k = 0 … g − 1``, all with the same measurement and
       information (a front end that matched a whole stretch of trajectory wrongly).
 
-    ``|a − b| ≥ 2`` (Vertigo's rule): an edge between consecutive ids would be odometry. Each
-    group's measurement is drawn around the identity, ``t ~ N(0, ADDED_SIGMA_T² I₂)`` [m] and ``θ ~
-    N(0, ADDED_SIGMA_THETA²)`` [rad] (0.3 m and 10°, Vertigo's); its information is that of a loop
+    ``|a − b| ≥ 2`` (Vertigo's rule: consecutive ids would be odometry). Each group's measurement is
+    drawn around the identity, ``t ~ N(0, ADDED_SIGMA_T² I₂)`` [m] and ``θ ~ N(0,
+    ADDED_SIGMA_THETA²)`` [rad] (0.3 m and 10°, Vertigo's); its information is that of a loop
     closure of the graph drawn uniformly (so the added edges' information is distributed as the true
     closures'). Nothing in the graph tells an added edge from a true closure: it is written in the
     orientation of the graph's loop closures (tail < head with the share of them that are), its kind
     is the one :func:`popbench.graph.robot_kinds` (or :func:`~popbench.graph.single_robot_kinds`)
     gives any edge between those poses, and it is inserted in the edge list where a front end would
-    emit it, after the last edge that reaches its later pose. Only the returned mask knows it.
+    emit it, after the last edge that reaches its later pose.
 
     Args:
         graph: the clean graph; its loop closures (kinds LOOP, INTER_LOOP) set the count and
@@ -194,8 +194,7 @@ def add_false_loop_closures(
         group_size: edges per group of ``vertigo-grouped`` (≥ 1; the other models use 1).
 
     Returns:
-        ``(graph, mask)``: the graph with ``K`` more edges, poses unchanged, and the
-        ``(M + K,)`` bool mask of the added edges.
+        ``(graph, mask)``: the graph with ``K`` more edges and the ``(M + K,)`` added-edge mask.
 
     Raises:
         ValueRangeError: an unknown model, ``rate`` outside ``[0, 1]``, ``group_size < 1`` or

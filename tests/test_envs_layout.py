@@ -300,3 +300,26 @@ def test_the_mode_default_checker_sees_literals() -> None:
     )
     assert [node.value for node in _string_constants(tree)].count("clip") == 2
     assert sorted(_mode_defaults(tree)) == [1, 1, 4, 5]
+
+
+MODULE_MAX_LINES = 550
+DOCSTRING_MAX_LINES = 40
+
+
+def test_modules_and_docstrings_stay_short() -> None:
+    """No package module over 550 lines and no class or function docstring over 40 lines: a
+    longer one holds two ideas (split the module) or a page of docs (move it to docs/)."""
+    long_modules, long_docstrings = [], []
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            text = path.read_text()
+            where = path.relative_to(ROOT)
+            if text.count("\n") > MODULE_MAX_LINES:
+                long_modules.append(f"{where}: {text.count(chr(10))}")
+            for node in ast.walk(ast.parse(text)):
+                if isinstance(node, ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
+                    doc = ast.get_docstring(node, clean=False)
+                    if doc is not None and doc.count("\n") + 1 > DOCSTRING_MAX_LINES:
+                        long_docstrings.append(f"{where}:{node.lineno} {node.name}")
+    assert not long_modules, f"modules over {MODULE_MAX_LINES} lines: {long_modules}"
+    assert not long_docstrings, f"docstrings over {DOCSTRING_MAX_LINES} lines: {long_docstrings}"
