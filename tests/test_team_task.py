@@ -104,25 +104,30 @@ def test_the_pettingzoo_env_pays_the_same_team_reward() -> None:
         assert total == pytest.approx(expected, rel=1e-5)
 
 
-def test_a_team_run_trains_and_is_labelled_by_its_reward(tmp_path) -> None:
+def tiny_team_run(out_dir, frames: int, frames_per_batch: int, minibatch_size: int):
+    """MAPPO on the team task from scratch at 3 robots × 12 poses, 2 envs, one epoch."""
     config = with_task(PRESETS["cpu-mappo"], get_task("team"))
-    config = dataclasses.replace(
+    return dataclasses.replace(
         config,
         experiment=dataclasses.replace(
             config.experiment,
             robots=3,
             poses_per_robot=12,
             num_envs=2,
-            frames=32,
-            frames_per_batch=16,
+            frames=frames,
+            frames_per_batch=frames_per_batch,
             eval_interval=10_000,
             checkpoint_interval=10_000,
             progress=False,
-            out_dir=str(tmp_path),
+            out_dir=str(out_dir),
         ),
         imitation=dataclasses.replace(config.imitation, episodes=0),
-        ppo=dataclasses.replace(config.ppo, minibatch_size=8, epochs=1),
+        ppo=dataclasses.replace(config.ppo, minibatch_size=minibatch_size, epochs=1),
     )
+
+
+def test_a_team_run_trains_and_is_labelled_by_its_reward(tmp_path) -> None:
+    config = tiny_team_run(tmp_path, frames=32, frames_per_batch=16, minibatch_size=8)
     assert config.task.team_reward == "consensus"
     result = train(config)
     assert result.frames == 32 and result.updates > 0
@@ -139,24 +144,7 @@ def test_a_team_run_scales_its_rewards_from_a_batch_where_they_vary(tmp_path) ->
 
     assert reward_scale(torch.zeros(4, 3, 1)) == SCALE_UNSET
     assert reward_scale(torch.tensor([0.0, 0.0, 0.5, 0.0])) == pytest.approx(4.0)
-    config = with_task(PRESETS["cpu-mappo"], get_task("team"))
-    config = dataclasses.replace(
-        config,
-        experiment=dataclasses.replace(
-            config.experiment,
-            robots=3,
-            poses_per_robot=12,
-            num_envs=2,
-            frames=64,
-            frames_per_batch=8,
-            eval_interval=10_000,
-            checkpoint_interval=10_000,
-            progress=False,
-            out_dir=str(tmp_path),
-        ),
-        imitation=dataclasses.replace(config.imitation, episodes=0),
-        ppo=dataclasses.replace(config.ppo, minibatch_size=4, epochs=1),
-    )
+    config = tiny_team_run(tmp_path, frames=64, frames_per_batch=8, minibatch_size=4)
     train(config)
     with (tmp_path / "metrics.csv").open() as handle:
         rows = list(csv.DictReader(handle))
