@@ -16,6 +16,7 @@ from conftest import data_missing, require_dataset
 
 from popbench import cli, datasets
 from popbench.cli import solve as solve_cli
+from popbench.harness import solve as solve_harness
 
 REQUIRED_KEYS = {
     "dataset", "method", "robots", "poses", "edges", "F_init", "F", "F_chordal", "chi2",
@@ -229,7 +230,7 @@ def test_method_options_follow_forwarding() -> None:
     assert {"lm_iterations", "consensus_iterations", "checkpoint"} <= set(method_options("prop-v2"))
     assert "consensus_iterations" in method_options("prop-v1")
     assert "lm_iterations" not in method_options("prop-v1")
-    solve_cli.check_method_options("prop-v2", {"consensus_iterations": 3, "lm_iterations": 5})
+    solve_harness.check_method_options("prop-v2", {"consensus_iterations": 3, "lm_iterations": 5})
 
 
 def test_solve_help_explains_rounds_and_robots() -> None:

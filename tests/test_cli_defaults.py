@@ -60,7 +60,9 @@ def test_start_partition_and_group_size_defaults_are_the_configs() -> None:
     )
     scalability, config = defaults_of(run.scalability_command), ScalabilityConfig()
     assert (scalability["init"], config.partition) == (config.init, Table1Config().partition)
-    commands = (solve.solve_command, solve.solve_record, solve.build_problem)
+    from popbench.harness.solve import build_problem
+
+    commands = (solve.solve_command, solve.solve_record, build_problem)
     for command in (*commands, plot.trajectories_command):
         assert defaults_of(command)["init"] == config.init, command.__name__
     for command in commands[:2]:

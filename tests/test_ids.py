@@ -14,7 +14,7 @@ import pytest
 from conftest import grid_g2o
 
 from popbench import cli
-from popbench.cli.solve import flagged_edges
+from popbench.harness.solve import flagged_edges
 from popbench.io.read import read_graph, write_g2o
 
 GRID_POSES = 20  # conftest.grid_g2o

@@ -221,7 +221,7 @@ def test_one_fix_pose_is_every_method_s_gauge_and_more_are_refused(small_graph) 
 def test_fix_poses_refused_by_the_command_exit_2(
     capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch, small_graph
 ) -> None:
-    from popbench.cli import solve as solve_module
+    from popbench.harness import solve as solve_module
 
     two = small_graph.replace(fixed=np.array([2, 7]))
     monkeypatch.setattr(
