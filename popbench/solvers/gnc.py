@@ -34,27 +34,8 @@ Inlier mask: TLS: final weight ≥ ½ (the final weights are binary); GM: final 
 (the weight at the threshold, ``¼`` at μ = 1, as for MM-PGO's kernels in
 :mod:`baselines.robust`).
 
-**One round**: weights from the current estimate and μ, then LM (:func:`~popbench.solvers.lm.
-solve_graph` with ``edge_weights``) on ``Σ w_e r_e²``, started from the last round's estimate
-(``warm_start=True``; GTSAM's ``GncOptimizer`` restarts every round from the inner start,
-``warm_start=False``) and stopped, like GTSAM's inner LM, at a relative cost decrease of
-``1e-5`` (:data:`INNER_TOLERANCE`; also the non-robust solve), or when the next step's decrease
-predicted with the last factorisation is below that (``decrement_tolerance``: a warm-started
-round then usually costs one factorisation instead of two). All solves share one sparse
-pattern and fill-reducing order (:class:`~popbench.solvers.lm.NormalEquations`). After the last
-round, LM polishes the estimate at the final weights to its own tolerance (1e-10), so the
-reported poses and ``F`` are as converged as a plain LM solve's. Stopping (GTSAM's rules): the
-relative change of the weighted cost between rounds is below ``1e-5``; TLS: every weight is
-within ``1e-4`` of 0 or 1; GM: the round ran at μ = 1; or the budget's rounds are spent.
-
-**Inner start** (``inner_start``): ``"problem"`` (the problem's own estimate; in Table II the
-odometry composition, which the default outlier model leaves uncorrupted), ``"chordal"`` (the
-chordal initialisation of the corrupted graph), or ``"best"`` (default): the runs of
-:data:`BEST_RUNS` (both starts warm, and the problem's start cold; with ``warm_start=False`` both
-cold), keeping the result of lowest robust cost ``Σ_e ρ(r_e²)`` (at μ's final value for GM: GM
-itself). No run is best on every graph (``docs/outliers.md``): LM from the odometry start stops in a
-poor minimum on MIT, the outliers distort the chordal start on Intel, and on m3500 with random false
-loop closures the warm rounds carry the early, nearly convex rounds' distortion to the end.
+One round (the weighted LM solve, its tolerances, the final polish) and the inner starts
+(``inner_start``, :data:`BEST_RUNS`): docs/outliers.md, "`gnc`".
 """
 
 from __future__ import annotations
@@ -167,7 +148,7 @@ def solve(
         cost ``Σ_e ρ(r_e²)`` (odometry edges: ``r_e²``) at the result and at the problem's start,
         and its gradient norm (``ρ'(r²)``-weighted) at the result.
 
-    Rounds and the inner start: the module docstring ("One round", "Inner start").
+    Rounds and the inner start: docs/outliers.md ("`gnc`").
     """
     if objective not in OBJECTIVES:
         raise ValueRangeError("gnc objective", objective, " | ".join(OBJECTIVES))
