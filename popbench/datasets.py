@@ -477,7 +477,7 @@ def load(name_or_path: str | Path) -> PoseGraph:
         DatasetError: unknown name, missing file or checksum mismatch.
         DataFormatError: a malformed file.
     """
-    from popbench.io.read import read_graph, read_vertices
+    from popbench.io import read_graph, read_vertices
 
     key = str(name_or_path)
     if key in DATASETS:

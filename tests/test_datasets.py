@@ -262,7 +262,7 @@ def test_the_toro_datasets_load_with_their_counts(name: str) -> None:
 
 
 def test_load_reads_a_path(tmp_path: Path, small_graph) -> None:
-    from popbench.io.read import write_g2o
+    from popbench.io import write_g2o
 
     write_g2o(small_graph, tmp_path / "loop.g2o")
     graph = datasets.load(str(tmp_path / "loop.g2o"))

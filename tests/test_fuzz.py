@@ -16,7 +16,7 @@ import pytest
 from conftest import grid_g2o, ring_g2o
 
 from popbench import cli
-from popbench.io.read import read_graph, write_toro
+from popbench.io import read_graph, write_toro
 from popbench.methods import METHODS
 
 Lines = list[str]

@@ -18,7 +18,7 @@ from conftest import require_dataset
 
 from popbench import objective
 from popbench.cli import main
-from popbench.io.read import read_graph
+from popbench.io import read_graph
 from popbench.solvers.lm import reference_optimum
 
 FALSE_CLOSURES = 100

@@ -332,7 +332,7 @@ def test_outliers_vertigo_models_and_a_mask_file(tmp_path, capsys):
     """--model vertigo-*: false loop closures added and scored; --outlier-mask: a file that
     already holds them (written here from the injector) gives the same problem and scores."""
     from popbench.datasets import load
-    from popbench.io.read import write_g2o
+    from popbench.io import write_g2o
     from popbench.outliers import add_false_loop_closures
 
     graph = grid_g2o(tmp_path / "grid.g2o")

@@ -15,7 +15,7 @@ from conftest import grid_g2o
 
 from popbench import cli
 from popbench.harness.solve import flagged_edges
-from popbench.io.read import read_graph, write_g2o
+from popbench.io import read_graph, write_g2o
 
 GRID_POSES = 20  # conftest.grid_g2o
 LETTER_SHIFT = 56  # gtsam.Symbol: the character in the top byte, the index below it
@@ -185,7 +185,7 @@ def test_an_edge_to_a_missing_vertex_names_it(capsys: pytest.CaptureFixture, tmp
 
 
 def test_tum_rounded_counts_the_ids_float64_merges() -> None:
-    from popbench.io.read import tum_rounded
+    from popbench.io import tum_rounded
 
     assert tum_rounded(np.arange(5) + 2**53 - 4) == 0  # 2⁵³ − 4 … 2⁵³: all exact
     assert tum_rounded(np.array([2**53, 2**53 + 1, 7])) == 2  # 2⁵³ + 1 rounds to 2⁵³

@@ -12,7 +12,7 @@ from conftest import require_dataset
 from popbench import se2
 from popbench.errors import DataFormatError
 from popbench.graph import odometry_composition
-from popbench.io.read import detect_format, read_graph, read_vertices, write_g2o, write_toro
+from popbench.io import detect_format, read_graph, read_vertices, write_g2o, write_toro
 
 EDGE = "EDGE_SE2 0 1 1.0 0.0 0.1 10 0 0 10 0 10"
 VERTICES = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0.1\n"

@@ -25,7 +25,7 @@ from popbench import objective
 from popbench.cli import main
 from popbench.cli.train import train_config
 from popbench.errors import ValueRangeError
-from popbench.io.read import write_g2o
+from popbench.io import write_g2o
 from popbench.methods import Budget, get_method, method_options
 from popbench.problems.synthetic import make_problem
 from popbench.solvers.initial import with_start

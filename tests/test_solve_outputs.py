@@ -14,7 +14,7 @@ from conftest import grid_g2o, require_dataset
 
 from popbench import cli, objective
 from popbench.errors import DataFormatError, ValueRangeError
-from popbench.io.read import read_graph, write_g2o, write_solution, write_toro, write_tum
+from popbench.io import read_graph, write_g2o, write_solution, write_toro, write_tum
 
 
 def solve_json(capsys: pytest.CaptureFixture, *args: str) -> dict:

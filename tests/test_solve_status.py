@@ -237,7 +237,7 @@ def test_fix_poses_refused_by_the_command_exit_2(
 def test_fix_lines_hold_their_poses_bitwise_through_the_command(
     capsys: pytest.CaptureFixture, tmp_path, method: str, fix: str
 ) -> None:
-    from popbench.io.read import read_graph
+    from popbench.io import read_graph
 
     path = grid_g2o(tmp_path / "grid.g2o")
     path.write_text(path.read_text() + f"FIX {fix}\n")

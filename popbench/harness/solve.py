@@ -186,7 +186,7 @@ def reading_notes(load, *arguments) -> tuple[Any, list[str]]:
     other warnings are shown as usual."""
     import warnings
 
-    from popbench.io.read import ReadWarning
+    from popbench.io import ReadWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ReadWarning)
@@ -207,7 +207,7 @@ def flagged_edges(graph, inlier_mask) -> list[dict[str, int]] | None:
     edge order, ``i``, ``j`` the file's vertex ids; None without a mask."""
     import numpy as np
 
-    from popbench.io.read import file_ids
+    from popbench.io import file_ids
 
     if inlier_mask is None:
         return None
@@ -225,7 +225,7 @@ def check_output_paths(
 ) -> None:
     """Before solving: ``output`` must end in ``.g2o`` or ``.graph``, and every given path must
     be in an existing folder and not be a folder (ValueRangeError, exit status 2)."""
-    from popbench.io.read import graph_writer
+    from popbench.io import graph_writer
 
     paths = {"output": output, "trajectory": trajectory, "flags": flags}
     for key, path in paths.items():
@@ -252,7 +252,7 @@ def write_outputs(
     (:func:`popbench.io.read.write_flags`, weights from ``result.extras["weights"]`` where the
     method reports them: gnc, mm-pgo with a kernel). Returns the one-line notes for the user:
     TUM timestamps that float64 readers (evo) will round (:func:`popbench.io.read.tum_rounded`)."""
-    from popbench.io.read import file_ids, tum_rounded, write_flags, write_solution, write_tum
+    from popbench.io import file_ids, tum_rounded, write_flags, write_solution, write_tum
 
     notes = []
     if output is not None:

@@ -1,8 +1,8 @@
 """Read planar pose graphs: g2o (``VERTEX_SE2``/``EDGE_SE2``) and TORO (``VERTEX2``/``EDGE2``).
 
 The line layouts and TORO's information conversion are :mod:`popbench.io.format`, the value
-ranges refused at load :mod:`popbench.io.limits`, the writers :mod:`popbench.io.write`; their
-public names are importable from here too (``from popbench.io.read import write_g2o``).
+ranges refused at load :mod:`popbench.io.limits`, the writers :mod:`popbench.io.write`; the
+package, :mod:`popbench.io`, gathers their public names (``from popbench.io import write_g2o``).
 
 TORO ``EQUIV i j`` (as in Olson's ``w10000.graph``) declares vertices ``i`` and ``j`` to be the
 same pose. They are merged, not tied by a tight edge: an infinitely stiff constraint is exactly
@@ -48,46 +48,7 @@ from popbench.io.format import (
     ScannedLines,
     information_matrices,
 )
-from popbench.io.limits import (
-    COORDINATE_LIMIT,
-    INFORMATION_RANGE,
-    INFORMATION_SPREAD,
-    check_coordinates,
-    check_information,
-)
-from popbench.io.write import (
-    FLAGS_HEADER,
-    GRAPH_WRITERS,
-    file_ids,
-    graph_writer,
-    tum_rounded,
-    write_flags,
-    write_g2o,
-    write_solution,
-    write_toro,
-    write_tum,
-)
-
-__all__ = [
-    "COORDINATE_LIMIT",
-    "FLAGS_HEADER",
-    "GRAPH_WRITERS",
-    "INFORMATION_RANGE",
-    "INFORMATION_SPREAD",
-    "MAX_VERTEX_ID",
-    "ReadWarning",
-    "detect_format",
-    "file_ids",
-    "graph_writer",
-    "read_graph",
-    "read_vertices",
-    "tum_rounded",
-    "write_flags",
-    "write_g2o",
-    "write_solution",
-    "write_toro",
-    "write_tum",
-]
+from popbench.io.limits import check_coordinates, check_information
 
 
 class ReadWarning(UserWarning):
