@@ -237,17 +237,16 @@ def local_estimates(
 
     if row == "no-op":
         return place_separators(problem)
-    rule = step_rule
     if row == "random":
-        return episode(problem, random_policy(np.random.default_rng(seed)), rule)
+        return episode(problem, random_policy(np.random.default_rng(seed)), step_rule)
     if row == "greedy":
-        return episode(problem, greedy_policy(), rule)
+        return episode(problem, greedy_policy(), step_rule)
     if row == "gn-sweep":
-        return episode(problem, class_policy(GaussNewtonSweep), rule)
+        return episode(problem, class_policy(GaussNewtonSweep), step_rule)
     if row == "expert":
-        return episode(problem, class_policy(Expert), rule)
+        return episode(problem, class_policy(Expert), step_rule)
     if row in LEARNED_ROWS:
-        return learned_episode(row, problem, checkpoint, rule).local_poses
+        return learned_episode(row, problem, checkpoint, step_rule).local_poses
     if row == "local-lm":
         return local_optima(problem)[0]
     if row == "ground-truth":
