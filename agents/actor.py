@@ -240,9 +240,9 @@ class HybridActor(nn.Module):
         """[G, E + 1] edge-head scores of the allowed choices (−inf elsewhere).
 
         The head's first layer on [h_p ‖ h_q ‖ a_pq ‖ symlog r_pq ‖ context] (the rows of
-        `edge_embeddings` and the memory context) is split into its blocks: W_p·h and W_q·h once
-        per vertex, W_c·context once per graph, and only the allowed rows (graphs.action_mask:
-        the unprocessed real edges; on average a third of the padded slots) gather and add them.
+        `edge_embeddings` and the memory context) is split into two blocks: W_c·context once per
+        graph, and W_e·[h_p ‖ h_q ‖ a_pq ‖ symlog r_pq] on the allowed rows alone
+        (graphs.action_mask: the unprocessed real edges; on average a third of the padded slots).
 
         Args:
             nodes: [G, V, d] node embeddings; context: [G, H] the memory's output.
@@ -261,16 +261,13 @@ class HybridActor(nn.Module):
         hidden = F.linear(context, context_block, first.bias).index_select(0, graph_of)
         flat_nodes = nodes.reshape(count * vertices, width)
         local = graphs.edge_index.clamp(0, vertices - 1)
-        edge_part = 0.0
-        for row in (0, 1):  # tail, head
-            ends = local[:, row].reshape(-1).index_select(0, flat_slot)
-            block = weight[:, row * width : (row + 1) * width]
-            edge_part = edge_part + F.linear(flat_nodes, block).index_select(
-                0, graph_of * vertices + ends
-            )
+        ends = [  # h_p, h_q of the allowed rows' tails and heads, [A, d] each
+            flat_nodes.index_select(0, graph_of * vertices + local[:, row].reshape(-1)[flat_slot])
+            for row in (0, 1)
+        ]
         features = torch.cat([graphs.edge_attr, symlog(graphs.residuals.to(nodes.dtype))], -1)
-        rows = features.reshape(-1, features.shape[-1]).index_select(0, flat_slot)
-        edge_part = edge_part + F.linear(rows, weight[:, 2 * width : 2 * width + rows.shape[-1]])
+        rows = torch.cat([*ends, features.reshape(-1, features.shape[-1])[flat_slot]], -1)
+        edge_part = F.linear(rows, weight[:, : rows.shape[-1]])
         hidden = torch.relu(hidden + real * edge_part)
         scores = torch.full_like(mask, float("-inf"), dtype=nodes.dtype)
         return scores.view(-1).index_copy(0, allowed, last(hidden).squeeze(-1)).view_as(scores)
