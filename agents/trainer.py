@@ -35,6 +35,7 @@ a resumed run restarts the episodes that were in progress (the environments are 
 
 Frames are counted as TorchRL does: one frame = one step of one environment of the batch (all
 n agents at once), so a transition in the buffer is one joint (multi-agent) step.
+Memory: `train` keeps freed blocks in the process (agents.allocator; glibc only).
 Held-out evaluation: :func:`evaluate_f_reduction`.
 """
 
@@ -57,6 +58,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
 from agents.algorithms import learner_of
+from agents.allocator import retain_freed_memory
 from agents.checkpoint import read_checkpoint, save_checkpoint, save_snapshot
 from agents.config import TrainConfig
 from agents.imitation import run_phase as run_imitation_phase
@@ -125,6 +127,7 @@ class TrainResult:
 def train(config: TrainConfig, resume: bool = True) -> TrainResult:
     """Train `config.algorithm_name` (GA-SAC, MAPPO or IPPO) as configured (module docstring)."""
     started = time.perf_counter()
+    retain_freed_memory()
     learner = learner_of(config)
     experiment = config.experiment
     out_dir = Path(experiment.out_dir)

@@ -655,3 +655,13 @@ def test_the_packed_encoder_and_split_edge_head_equal_the_dense_computation() ->
     torch.testing.assert_close(split, dense, rtol=1e-5, atol=1e-5)
     assert torch.equal(split.argmax(-1), dense.argmax(-1))
 
+
+def test_retain_freed_memory_sets_glibc_thresholds() -> None:
+    """On glibc both mallopt calls succeed (mallopt returns 0 for a value it refuses)."""
+    import platform
+
+    from agents.allocator import retain_freed_memory
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("mallopt is glibc's")
+    assert retain_freed_memory() is True
