@@ -135,20 +135,23 @@ def test_a_team_run_trains_and_is_labelled_by_its_reward(tmp_path) -> None:
     assert identity["algorithm"] == "mappo-team"
 
 
-def test_a_team_run_scales_its_rewards_from_a_batch_where_they_vary(tmp_path) -> None:
-    """The first batches of the team task pay only 0 (no episode has ended): they must not set
-    the reward scale (1 / std of zeros was 10⁶, and the critic's targets 10⁶ × the returns)."""
+def test_a_team_run_keeps_the_terminal_rewards_own_scale(tmp_path) -> None:
+    """The team task's terminal reward (a share of F in [−1, 1]) declares c = 1; a batch of
+    zeros or one small terminal reward must not set it (1 / std of zeros was 10⁶ and the
+    critic's targets 10⁶ × the returns; one small terminal reward gave c = 102)."""
     import csv
 
-    from agents.reward_scale import SCALE_UNSET, reward_scale
+    from agents.reward_scale import SCALE_UNSET, declared_scale, reward_scale
+    from envs.modes import TRAJECTORY_MODES
 
     assert reward_scale(torch.zeros(4, 3, 1)) == SCALE_UNSET
     assert reward_scale(torch.tensor([0.0, 0.0, 0.5, 0.0])) == pytest.approx(4.0)
+    assert declared_scale(TRAJECTORY_MODES) == SCALE_UNSET  # per-step rewards: the std rule
+    shaped = TRAJECTORY_MODES.replace(team_reward="consensus+shaping")
+    assert declared_scale(shaped) == SCALE_UNSET
     config = tiny_team_run(tmp_path, frames=64, frames_per_batch=8, minibatch_size=4)
     train(config)
     with (tmp_path / "metrics.csv").open() as handle:
         rows = list(csv.DictReader(handle))
-    scales = [float(row["reward_scale"]) for row in rows]
-    assert scales[0] == SCALE_UNSET  # 4 joint steps of 2 envs: no episode has ended yet
-    assert 0.0 < scales[-1] < 100.0  # set from the first batch with a terminal reward
+    assert [float(row["reward_scale"]) for row in rows] == [1.0] * len(rows)
     assert all(float(row["loss_critic"]) < 1e4 for row in rows)  # 10⁸–10¹¹ before
