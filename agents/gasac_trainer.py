@@ -16,7 +16,7 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer
 from agents.diagnostics import critic_probe
 from agents.learner import Learner
 from agents.metrics import METRIC_FIELDS
-from agents.reward_scale import SCALE_UNSET, applied, declared_scale, reward_scale
+from agents.reward_scale import applied, run_scale
 from agents.session import Session, build_session, restore, session_state
 
 
@@ -59,16 +59,13 @@ def optimise(session: Session, batch: TensorDictBase) -> dict[str, float]:
 @torch.no_grad()
 def calibrate(session: Session, warmup: TensorDictBase) -> dict[str, float]:
     """At the end of the warm-up (before the first update): the reward scale c = 1 / std of the
-    warm-up rewards (auto_reward_scale; 1 when they are all equal or the task declares its c,
-    agents.reward_scale) and the
-    correction's target entropy = the start policy's own on the warm-up states
-    (auto_delta_entropy); returns what was set."""
+    warm-up rewards (auto_reward_scale; 1 when they are all equal or the task fixes its c,
+    agents.reward_scale.run_scale) and the correction's target entropy = the start policy's own
+    on the warm-up states (auto_delta_entropy); returns what was set."""
     algorithm, loss = session.config.algorithm, session.loss
     values = {}
     if algorithm.auto_reward_scale:
-        scale = declared_scale(session.config.task)
-        if scale == SCALE_UNSET:
-            scale = reward_scale(warmup["next", "agents", "reward"])
+        scale = run_scale(session.config.task, warmup["next", "agents", "reward"])
         loss.reward_scale.fill_(applied(scale))
         values["reward_scale"] = float(loss.reward_scale)
     if algorithm.auto_delta_entropy:

@@ -7,11 +7,11 @@ distribution in agents.hybrid_distribution), a `ValueOperator` (agents.value: ce
 `MAPPO` and `IPPO` are its agents.learner.Learner records: agents.trainer.train runs them with the
 collector, checkpoints, metrics, held-out evaluation and resuming it runs GA-SAC with.
 
-Per collected batch [num_envs, T] (`PPOBatches.learn`): rewards scaled by c (the task's
-declared c, else 1 / std of the first batch's rewards that vary, kept for the run;
-agents.reward_scale), the root done flags expanded to the robots, V(s) and V(s') by the value
-function, GAE advantages and value targets (per robot, normalised over the batch), then
-`epochs` passes of shuffled minibatches of `minibatch_size` joint transitions.
+Per collected batch [num_envs, T] (`PPOBatches.learn`): rewards scaled by c (1 / std of the
+first batch's rewards that vary, or 1 where the task fixes its scale, kept for the run;
+agents.reward_scale.run_scale), the root done flags expanded to the robots, V(s) and V(s') by
+the value function, GAE advantages and value targets (per robot, normalised over the batch),
+then `epochs` passes of shuffled minibatches of `minibatch_size` joint transitions.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from agents.config import TrainConfig
 from agents.learner import Learner
 from agents.metrics import PPO_METRIC_FIELDS
 from agents.ppo_actor import ACTION_KEY, SAMPLE_LOG_PROB_KEY, PPOPolicy
-from agents.reward_scale import SCALE_UNSET, applied, declared_scale, reward_scale
+from agents.reward_scale import SCALE_UNSET, applied, run_scale
 from agents.session import training_env
 from agents.value import VALUE_KEY, TeamValue, ValueOperator
 
@@ -93,9 +93,7 @@ def build_ppo_session(config: TrainConfig, central_value: bool) -> PPOSession:
     advantage = GAE(gamma=ppo.gamma, lmbda=ppo.lmbda, value_network=None)
     advantage.set_keys(**{name: KEYS[name] for name in GAE_KEYS})
     optimiser = torch.optim.Adam(loss.parameters(), lr=ppo.lr)
-    session = PPOSession(config, env, actor, policy, value, loss, advantage, optimiser, dims)
-    session.reward_scale = declared_scale(config.task)
-    return session
+    return PPOSession(config, env, actor, policy, value, loss, advantage, optimiser, dims)
 
 
 def ppo_session_state(session: PPOSession) -> dict[str, Any]:
@@ -137,7 +135,7 @@ class PPOBatches:
         session, ppo = self.session, self.session.config.ppo
         reward = data.get(("next", AGENTS, "reward"))  # [B, T, n, 1]
         if session.reward_scale == SCALE_UNSET:
-            session.reward_scale = reward_scale(reward)
+            session.reward_scale = run_scale(session.config.task, reward)
         data.set(("next",) + KEYS["reward"], reward * applied(session.reward_scale))
         for name in ("done", "terminated"):
             flag = data.get(("next", name)).unsqueeze(-2).expand_as(reward)  # [B, T, 1] → robots

@@ -7,7 +7,7 @@ the 0 of the steps before any episode ends, and 1 / max(std, 1e-6) made c = 10�
 targets 10⁶ times the returns (critic losses of 10⁸–10¹¹ in the 2026-12-07 MAPPO team runs).
 Such a batch sets nothing; the run uses c = 1 until a batch's rewards vary.
 
-A reward that fixes its own scale skips the rule (:func:`declared_scale`): the team task's
+A reward that fixes its own scale skips the rule (:func:`run_scale`): the team task's
 terminal reward alone (``team_reward="consensus"``) is a share of F in [−1, 1], already the scale
 of a return, and its first varying batch may hold a single small terminal reward (one 2026-12-07
 MAPPO team run got c = 102 from one, and critic losses up to 542), so its c is 1.
@@ -35,10 +35,11 @@ def reward_scale(reward: torch.Tensor) -> float:
     return 1.0 / std if std > VARYING_STD else SCALE_UNSET
 
 
-def declared_scale(modes: EnvModes) -> float:
-    """The c the task's reward fixes (1 for the team task's terminal reward alone, module
-    docstring), or SCALE_UNSET: c then comes from the first rewards that vary."""
-    return 1.0 if modes.team_reward == "consensus" else SCALE_UNSET
+def run_scale(modes: EnvModes, reward: torch.Tensor) -> float:
+    """The c a run keeps, from its first rewards ``reward``: 1 where the task's reward fixes its
+    own scale (the team task's terminal reward alone, module docstring), else
+    :func:`reward_scale` (SCALE_UNSET while they have not varied)."""
+    return 1.0 if modes.team_reward == "consensus" else reward_scale(reward)
 
 
 def applied(scale: float) -> float:

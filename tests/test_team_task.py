@@ -141,14 +141,16 @@ def test_a_team_run_keeps_the_terminal_rewards_own_scale(tmp_path) -> None:
     critic's targets 10⁶ × the returns; one small terminal reward gave c = 102)."""
     import csv
 
-    from agents.reward_scale import SCALE_UNSET, declared_scale, reward_scale
+    from agents.reward_scale import SCALE_UNSET, reward_scale, run_scale
     from envs.modes import TRAJECTORY_MODES
 
     assert reward_scale(torch.zeros(4, 3, 1)) == SCALE_UNSET
     assert reward_scale(torch.tensor([0.0, 0.0, 0.5, 0.0])) == pytest.approx(4.0)
-    assert declared_scale(TRAJECTORY_MODES) == SCALE_UNSET  # per-step rewards: the std rule
+    one_small = torch.tensor([0.0, 0.0, 0.01, 0.0])  # c = 200 under the std rule
+    assert run_scale(TRAJECTORY_MODES, one_small) == reward_scale(one_small)  # per-step rewards
     shaped = TRAJECTORY_MODES.replace(team_reward="consensus+shaping")
-    assert declared_scale(shaped) == SCALE_UNSET
+    assert run_scale(shaped, one_small) == reward_scale(one_small)
+    assert run_scale(TRAJECTORY_MODES.replace(team_reward="consensus"), one_small) == 1.0
     config = tiny_team_run(tmp_path, frames=64, frames_per_batch=8, minibatch_size=4)
     train(config)
     with (tmp_path / "metrics.csv").open() as handle:
